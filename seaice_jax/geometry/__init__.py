@@ -1,0 +1,44 @@
+"""Pure geometric models (no I/O): the Earth, range-Doppler intersection, the great-circle scan model,
+trajectories and map projections."""
+
+from seaice_jax.geometry.earth import (
+    EARTH_ROTATION_RATE,
+    MEAN_RADIUS,
+    SIDEREAL_DAY,
+    SOLAR_DAY,
+    WGS84_FLATTENING,
+    WGS84_SEMI_MAJOR_AXIS,
+    cartesian_to_sphere,
+    ecef_to_geodetic,
+    geodetic_to_ecef,
+    great_circle_distance,
+    latitude_longitude,
+    sphere_to_cartesian,
+    unit_vector,
+)
+from seaice_jax.geometry.projections import (
+    ImageGrid,
+    LambertConformalConic,
+    PolarStereographic,
+    TangentPlane,
+    nsidc_polar_stereographic,
+)
+from seaice_jax.geometry.range_doppler import (
+    LEFT,
+    RIGHT,
+    doppler_residual,
+    ground_point,
+    imaging_time_and_range,
+    incidence_angle,
+)
+from seaice_jax.geometry.scan import SATELLITES, Orbit, SatelliteOrbit, ScanModel, satellite_orbit
+from seaice_jax.geometry.trajectory import CircularTrajectory
+
+__all__ = [
+    "EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
+    "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic", "geodetic_to_ecef",
+    "great_circle_distance", "latitude_longitude", "sphere_to_cartesian", "unit_vector",
+    "ImageGrid", "LambertConformalConic", "PolarStereographic", "TangentPlane", "nsidc_polar_stereographic",
+    "LEFT", "RIGHT", "doppler_residual", "ground_point", "imaging_time_and_range", "incidence_angle",
+    "SATELLITES", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit", "CircularTrajectory",
+]

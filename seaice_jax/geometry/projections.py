@@ -1,0 +1,238 @@
+"""Map projections: forward ``(latitude, longitude) -> (x, y)`` and inverse, as eqx.Module value types.
+
+* :class:`TangentPlane`: orthographic projection onto the plane tangent at the centre of the area (the map frame
+  of source 000), on the sphere.
+* :class:`ImageGrid`: the equi-rectangular image grid of source 001 (section 3.3 footnote, VHR3): reference
+  latitude/longitude at a reference pixel/line, pixel sizes in metres, longitude scaled at the reference latitude.
+* :class:`LambertConformalConic` and :class:`PolarStereographic`: on a sphere or an ellipsoid (Snyder 1987,
+  *Map Projections — A Working Manual*, USGS PP 1395, eqs 15-1 to 15-11 and 21-33 to 21-40). The usual sea-ice
+  grids (NSIDC EPSG:3413 and EPSG:3976) come from :func:`nsidc_polar_stereographic`.
+
+Angles in radians, lengths in metres. Latitude/longitude are on the figure the projection is defined on (the
+sphere for the spherical ones, geodetic for an ellipsoid; see :mod:`seaice_jax.geometry.earth` for conversions).
+Tests compare every projection with PROJ (pyproj).
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from seaice_jax.geometry.earth import MEAN_RADIUS, WGS84_FLATTENING, WGS84_SEMI_MAJOR_AXIS, unit_vector
+
+
+def _as_float(value):
+    return jnp.asarray(value, float)
+
+
+def _wrap(angle):
+    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+
+
+class TangentPlane(eqx.Module):
+    """Orthographic projection onto the plane tangent to the sphere at (``latitude``, ``longitude``).
+
+    x points east, y north at the tangent point. Points on the far hemisphere map to NaN.
+    """
+
+    latitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    longitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
+
+    def _axes(self):
+        up = unit_vector(self.latitude, self.longitude)
+        east = jnp.stack([-jnp.sin(self.longitude), jnp.cos(self.longitude), jnp.zeros_like(self.longitude)])
+        return east, jnp.cross(up, east), up
+
+    def forward(self, latitude, longitude):
+        """``(x, y)`` metres in the tangent plane of ``(latitude, longitude)`` radians, each ``(...)``."""
+        east, north, up = self._axes()
+        g = unit_vector(latitude, longitude)
+        front = g @ up >= 0.0
+        return (jnp.where(front, self.radius * (g @ east), jnp.nan),
+                jnp.where(front, self.radius * (g @ north), jnp.nan))
+
+    def inverse(self, x, y):
+        """``(latitude, longitude)`` radians of tangent-plane ``(x, y)`` metres; NaN beyond the sphere's disk."""
+        east, north, up = self._axes()
+        e, n = jnp.broadcast_arrays(_as_float(x) / self.radius, _as_float(y) / self.radius)
+        h2 = 1.0 - e**2 - n**2
+        vertical = jnp.sqrt(jnp.where(h2 >= 0.0, h2, 0.0))
+        g = e[..., None] * east + n[..., None] * north + vertical[..., None] * up
+        latitude = jnp.arctan2(g[..., 2], jnp.hypot(g[..., 0], g[..., 1]))
+        longitude = jnp.arctan2(g[..., 1], g[..., 0])
+        return jnp.where(h2 >= 0.0, latitude, jnp.nan), jnp.where(h2 >= 0.0, longitude, jnp.nan)
+
+
+class ImageGrid(eqx.Module):
+    """Equi-rectangular image grid (source 001): 1-based pixel (columns, east) and line (rows, south).
+
+    x = R (λ − λ_ref) cos φ_ref, y = R (φ − φ_ref); pixel = pixel_ref + x / pixel_width,
+    line = line_ref − y / pixel_height. The unit latitude and longitude cells keep the ratio of their surface
+    lengths at the reference latitude (source 001, footnote to section 3.3). Same as PROJ ``eqc`` with
+    ``lat_ts = lat_0 = φ_ref``.
+    """
+
+    reference_latitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    reference_longitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    reference_pixel: Float[Array, ""] = eqx.field(converter=_as_float)
+    reference_line: Float[Array, ""] = eqx.field(converter=_as_float)
+    pixel_width: Float[Array, ""] = eqx.field(converter=_as_float)
+    pixel_height: Float[Array, ""] = eqx.field(converter=_as_float)
+    radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
+
+    def map_xy(self, latitude, longitude):
+        """Metric map coordinates ``(x east, y north)`` relative to the reference point."""
+        x = self.radius * _wrap(_as_float(longitude) - self.reference_longitude) * jnp.cos(self.reference_latitude)
+        y = self.radius * (_as_float(latitude) - self.reference_latitude)
+        return jnp.broadcast_arrays(x, y)
+
+    def forward(self, latitude, longitude):
+        """``(pixel, line)`` (fractional, 1-based) of ``(latitude, longitude)`` radians."""
+        x, y = self.map_xy(latitude, longitude)
+        return self.reference_pixel + x / self.pixel_width, self.reference_line - y / self.pixel_height
+
+    def inverse(self, pixel, line):
+        """``(latitude, longitude)`` radians of fractional 1-based ``(pixel, line)``."""
+        x = (_as_float(pixel) - self.reference_pixel) * self.pixel_width
+        y = (self.reference_line - _as_float(line)) * self.pixel_height
+        latitude = self.reference_latitude + y / self.radius
+        longitude = _wrap(self.reference_longitude + x / (self.radius * jnp.cos(self.reference_latitude)))
+        return jnp.broadcast_arrays(latitude, longitude)
+
+
+def _eccentricity(flattening):
+    return jnp.sqrt(flattening * (2.0 - flattening))
+
+
+def _m(latitude, e):
+    """Snyder eq. 14-15: cos φ / √(1 − e² sin² φ)."""
+    return jnp.cos(latitude) / jnp.sqrt(1.0 - (e * jnp.sin(latitude)) ** 2)
+
+
+def _t(latitude, e):
+    """Snyder eq. 15-9: tan(π/4 − φ/2) / ((1 − e sin φ)/(1 + e sin φ))^(e/2)."""
+    es = e * jnp.sin(latitude)
+    return jnp.tan(jnp.pi / 4 - latitude / 2) / ((1.0 - es) / (1.0 + es)) ** (e / 2)
+
+
+def _latitude_from_t(t, e, iterations=12):
+    """Snyder eq. 7-9, fixed-point iteration (each step gains a factor of about e²)."""
+    latitude = jnp.pi / 2 - 2.0 * jnp.arctan(t)
+    for _ in range(iterations):
+        es = e * jnp.sin(latitude)
+        latitude = jnp.pi / 2 - 2.0 * jnp.arctan(t * ((1.0 - es) / (1.0 + es)) ** (e / 2))
+    return latitude
+
+
+class LambertConformalConic(eqx.Module):
+    """Lambert conformal conic with one or two standard parallels (Snyder eqs 15-1 to 15-11).
+
+    Attributes:
+        standard_parallel_1, standard_parallel_2: radians (equal for the one-parallel form).
+        origin_latitude, central_meridian: radians.
+        false_easting, false_northing: metres.
+        semi_major_axis, flattening: the figure (flattening 0 for a sphere of that radius).
+    """
+
+    standard_parallel_1: Float[Array, ""] = eqx.field(converter=_as_float)
+    standard_parallel_2: Float[Array, ""] = eqx.field(converter=_as_float)
+    origin_latitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    central_meridian: Float[Array, ""] = eqx.field(converter=_as_float)
+    false_easting: Float[Array, ""] = eqx.field(converter=_as_float, default=0.0)
+    false_northing: Float[Array, ""] = eqx.field(converter=_as_float, default=0.0)
+    semi_major_axis: Float[Array, ""] = eqx.field(converter=_as_float, default=WGS84_SEMI_MAJOR_AXIS)
+    flattening: Float[Array, ""] = eqx.field(converter=_as_float, default=WGS84_FLATTENING)
+
+    def _constants(self):
+        e = _eccentricity(self.flattening)
+        m1, m2 = _m(self.standard_parallel_1, e), _m(self.standard_parallel_2, e)
+        t1, t2 = _t(self.standard_parallel_1, e), _t(self.standard_parallel_2, e)
+        same = jnp.abs(self.standard_parallel_1 - self.standard_parallel_2) < 1e-12
+        n = jnp.where(same, jnp.sin(self.standard_parallel_1),
+                      (jnp.log(m1) - jnp.log(m2)) / jnp.where(same, 1.0, jnp.log(t1) - jnp.log(t2)))
+        big_f = m1 / (n * t1**n)
+        rho0 = self.semi_major_axis * big_f * _t(self.origin_latitude, e) ** n
+        return e, n, big_f, rho0
+
+    def forward(self, latitude, longitude):
+        """``(x, y)`` metres of ``(latitude, longitude)`` radians."""
+        e, n, big_f, rho0 = self._constants()
+        rho = self.semi_major_axis * big_f * _t(_as_float(latitude), e) ** n
+        theta = n * _wrap(_as_float(longitude) - self.central_meridian)
+        x = self.false_easting + rho * jnp.sin(theta)
+        y = self.false_northing + rho0 - rho * jnp.cos(theta)
+        return jnp.broadcast_arrays(x, y)
+
+    def inverse(self, x, y):
+        """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
+        e, n, big_f, rho0 = self._constants()
+        dx = _as_float(x) - self.false_easting
+        dy = rho0 - (_as_float(y) - self.false_northing)
+        sign = jnp.sign(n)
+        rho = sign * jnp.hypot(dx, dy)
+        theta = jnp.arctan2(sign * dx, sign * dy)
+        t = (rho / (self.semi_major_axis * big_f)) ** (1.0 / n)
+        latitude = _latitude_from_t(t, e)
+        longitude = _wrap(theta / n + self.central_meridian)
+        return jnp.broadcast_arrays(latitude, longitude)
+
+
+class PolarStereographic(eqx.Module):
+    """Polar stereographic, north or south, true scale at ``standard_parallel`` (Snyder eqs 21-33 to 21-40).
+
+    Attributes:
+        standard_parallel: latitude of true scale, radians (±π/2 for true scale at the pole); its sign picks the
+            hemisphere (the pole of projection).
+        central_meridian: longitude that points down (north) or up (south) from the pole, radians.
+        false_easting, false_northing: metres.
+        semi_major_axis, flattening: the figure.
+    """
+
+    standard_parallel: Float[Array, ""] = eqx.field(converter=_as_float)
+    central_meridian: Float[Array, ""] = eqx.field(converter=_as_float)
+    false_easting: Float[Array, ""] = eqx.field(converter=_as_float, default=0.0)
+    false_northing: Float[Array, ""] = eqx.field(converter=_as_float, default=0.0)
+    semi_major_axis: Float[Array, ""] = eqx.field(converter=_as_float, default=WGS84_SEMI_MAJOR_AXIS)
+    flattening: Float[Array, ""] = eqx.field(converter=_as_float, default=WGS84_FLATTENING)
+
+    def _constants(self):
+        """Hemisphere sign and the factor k with ρ = k · t(hemisphere · φ)."""
+        e = _eccentricity(self.flattening)
+        hemisphere = jnp.where(self.standard_parallel >= 0, 1.0, -1.0)
+        parallel = hemisphere * self.standard_parallel
+        at_pole = jnp.abs(parallel - jnp.pi / 2) < 1e-12
+        safe = jnp.where(at_pole, jnp.pi / 4, parallel)
+        k_parallel = self.semi_major_axis * _m(safe, e) / _t(safe, e)
+        k_pole = 2.0 * self.semi_major_axis / jnp.sqrt((1.0 + e) ** (1.0 + e) * (1.0 - e) ** (1.0 - e))
+        return e, hemisphere, jnp.where(at_pole, k_pole, k_parallel)
+
+    def forward(self, latitude, longitude):
+        """``(x, y)`` metres of ``(latitude, longitude)`` radians."""
+        e, hemisphere, k = self._constants()
+        rho = k * _t(hemisphere * _as_float(latitude), e)
+        dl = _as_float(longitude) - self.central_meridian
+        x = self.false_easting + rho * jnp.sin(dl)
+        y = self.false_northing - hemisphere * rho * jnp.cos(dl)
+        return jnp.broadcast_arrays(x, y)
+
+    def inverse(self, x, y):
+        """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
+        e, hemisphere, k = self._constants()
+        dx = _as_float(x) - self.false_easting
+        dy = _as_float(y) - self.false_northing
+        latitude = hemisphere * _latitude_from_t(jnp.hypot(dx, dy) / k, e)
+        longitude = _wrap(self.central_meridian + jnp.arctan2(dx, -hemisphere * dy))
+        return jnp.broadcast_arrays(latitude, longitude)
+
+
+def nsidc_polar_stereographic(hemisphere: str = "north") -> PolarStereographic:
+    """The NSIDC sea-ice polar stereographic grids on WGS84.
+
+    ``"north"``: EPSG:3413 (true scale at 70°N, central meridian 45°W). ``"south"``: EPSG:3976 (true scale at
+    70°S, central meridian 0°).
+    """
+    if hemisphere == "north":
+        return PolarStereographic(jnp.radians(70.0), jnp.radians(-45.0))
+    if hemisphere == "south":
+        return PolarStereographic(jnp.radians(-70.0), 0.0)
+    raise ValueError(f"hemisphere must be 'north' or 'south', got {hemisphere!r}")

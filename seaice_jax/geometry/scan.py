@@ -1,0 +1,296 @@
+"""Great-circle scan model of whisk-broom satellite images (NOAA VHRR/AVHRR, Landsat MSS).
+
+Source 001 (Arctic Sciences 1985), section 3.3 (eqs 3.3-1 to 3.3-10) and Appendix C; conventions fixed in
+DESIGN.md ("Great-circle scan model"):
+
+* spherical Earth, circular orbit of inclination i, ascending node longitude φ0, constant altitude H, period T_s;
+* the orbital angle η (from the ascending node) is linear in scan line between η_1 (line 1) and η_N (line N);
+  southbound passes have η increasing with scan line, northbound passes decreasing (the only difference);
+* the scanner angle is linear in pixel, zero at the subtrack pixel p_s, positive to the right of the direction
+  of flight, with pixel numbers increasing to the left: ψ(p) = span · (p_s − p)/(N_p − 1);
+* with H = 0 (image already corrected for Earth curvature) ψ is the Earth-central cross-track angle β; with
+  H > 0, β = asin((R + H)/R · sin ψ) − ψ;
+* ground point: cos β u(η) − sin β n (u sub-satellite unit vector, n orbit normal; −n is the right of flight);
+* Earth rotation subtracts (T_s/T_e) η from the longitude.
+
+With the parameters printed in Figure 3-3 of source 001 and T_e = 1440 min this reproduces the printed station
+deviations to about 1 arc minute (tests/test_scan.py).
+"""
+
+from typing import Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from seaice_jax.geometry._checks import is_traced, raise_where_nan
+from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, unit_vector
+
+Direction = Literal["south", "north"]
+
+
+def _as_float(value):
+    return jnp.asarray(value, float)
+
+_DIRECTION_SIGN = {"south": 1.0, "north": -1.0}
+
+
+class Orbit(eqx.Module):
+    """The fixed (per satellite or per pass) orbit of the scan model.
+
+    Attributes:
+        inclination: i, radians (NOAA and Landsat orbits are retrograde: i = 180° − maximum latitude).
+        period: T_s, seconds.
+        altitude: H, metres; 0 for images already corrected for Earth curvature.
+        earth_day: T_e, seconds of one Earth rotation (sidereal day by default; the 1985 program used 1440 min;
+            ``inf`` switches Earth rotation off).
+        radius: R, metres.
+    """
+
+    inclination: Float[Array, ""] = eqx.field(converter=_as_float)
+    period: Float[Array, ""] = eqx.field(converter=_as_float)
+    altitude: Float[Array, ""] = eqx.field(converter=_as_float, default=0.0)
+    earth_day: Float[Array, ""] = eqx.field(converter=_as_float, default=SIDEREAL_DAY)
+    radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
+
+    @classmethod
+    def from_max_latitude(cls, max_latitude, period, altitude=0.0, earth_day=SIDEREAL_DAY, radius=MEAN_RADIUS,
+                          retrograde=True):
+        """Orbit from the maximum latitude θ_m of the subtrack (radians): i = π − θ_m if retrograde, else θ_m."""
+        max_latitude = jnp.asarray(max_latitude, float)
+        inclination = jnp.pi - max_latitude if retrograde else max_latitude
+        return cls(inclination, period, altitude, earth_day, radius)
+
+    @property
+    def max_latitude(self):
+        """Maximum latitude of the subtrack, radians."""
+        return jnp.where(self.inclination > jnp.pi / 2, jnp.pi - self.inclination, self.inclination)
+
+    @property
+    def rotation_ratio(self):
+        """T_s / T_e: Earth rotation (radians of longitude) per radian of orbital angle."""
+        return self.period / self.earth_day
+
+
+class ScanModel(eqx.Module):
+    """The five per-image unknowns of the great-circle scan model and the fixed orbit.
+
+    Attributes:
+        scanner_angle_span: ψ_1 − ψ_N, radians: scanner angle between the first and last pixel (the Earth-central
+            angle β when the orbit's altitude is 0). Printed as "OFFSET" in Figure 3-3.
+        subtrack_pixel: p_s, the (fractional, 1-based) pixel of the orbital subtrack; may lie off the image.
+        orbital_angle_first: η_1, radians from the ascending node at scan line 1.
+        orbital_angle_span: |η_N − η_1|, radians ("ANGLE" in Figure 3-3).
+        ascending_node: φ0, longitude of the ascending node, radians.
+        orbit: the fixed :class:`Orbit`.
+        direction: ``"south"`` (η increases with scan line) or ``"north"`` (η decreases).
+        n_pixels, n_scans: image size (pixels per scan line, scan lines).
+    """
+
+    scanner_angle_span: Float[Array, ""]
+    subtrack_pixel: Float[Array, ""]
+    orbital_angle_first: Float[Array, ""]
+    orbital_angle_span: Float[Array, ""]
+    ascending_node: Float[Array, ""]
+    orbit: Orbit
+    direction: Direction = eqx.field(static=True, default="south")
+    n_pixels: int = eqx.field(static=True, default=512)
+    n_scans: int = eqx.field(static=True, default=512)
+
+    def __check_init__(self):
+        if self.direction not in _DIRECTION_SIGN:
+            raise ValueError(f"direction must be 'south' or 'north', got {self.direction!r}")
+        if self.n_pixels < 2 or self.n_scans < 2:
+            raise ValueError(f"image size must be at least 2 x 2, got n_pixels={self.n_pixels}, "
+                             f"n_scans={self.n_scans}")
+
+    @classmethod
+    def from_edges(cls, scanner_angle_first, scanner_angle_last, orbital_angle_first, orbital_angle_last,
+                   ascending_node, orbit, n_pixels=512, n_scans=512):
+        """Model from the angles at the image edges as a 1985 printout lists them (radians).
+
+        The subtrack pixel follows from where the scanner angle crosses zero; the direction from the sign of
+        η_N − η_1.
+        """
+        span = jnp.asarray(scanner_angle_first - scanner_angle_last, float)
+        subtrack = 1.0 + scanner_angle_first / span * (n_pixels - 1)
+        eta_span = float(orbital_angle_last - orbital_angle_first)
+        return cls(span, subtrack, jnp.asarray(orbital_angle_first, float), jnp.asarray(abs(eta_span)),
+                   jnp.asarray(ascending_node, float), orbit, "south" if eta_span >= 0 else "north",
+                   n_pixels, n_scans)
+
+    @property
+    def _eta_sign(self):
+        return _DIRECTION_SIGN[self.direction]
+
+    @property
+    def scanner_angle_first(self):
+        """Scanner angle at pixel 1, radians."""
+        return self.scanner_angle(1.0)
+
+    @property
+    def scanner_angle_last(self):
+        """Scanner angle at the last pixel, radians."""
+        return self.scanner_angle(float(self.n_pixels))
+
+    @property
+    def orbital_angle_last(self):
+        """Orbital angle η_N at the last scan line, radians."""
+        return self.orbital_angle(float(self.n_scans))
+
+    def scanner_angle(self, pixel):
+        """Scanner angle ψ (radians) at fractional 1-based ``pixel``: span · (p_s − p)/(N_p − 1)."""
+        return self.scanner_angle_span * (self.subtrack_pixel - jnp.asarray(pixel, float)) / (self.n_pixels - 1)
+
+    def orbital_angle(self, scan):
+        """Orbital angle η (radians from the ascending node) at fractional 1-based scan line ``scan``."""
+        fraction = (jnp.asarray(scan, float) - 1.0) / (self.n_scans - 1)
+        return self.orbital_angle_first + self._eta_sign * self.orbital_angle_span * fraction
+
+    def central_angle(self, scanner_angle):
+        """Earth-central cross-track angle β from the scanner angle ψ: β = asin((R+H)/R sin ψ) − ψ (ψ if H = 0).
+
+        NaN where the line of sight misses the Earth.
+        """
+        ratio = (self.orbit.radius + self.orbit.altitude) / self.orbit.radius
+        sine = ratio * jnp.sin(scanner_angle)
+        hits = jnp.abs(sine) <= 1.0
+        beta = jnp.arcsin(jnp.where(hits, sine, 0.0)) - scanner_angle
+        return jnp.where(hits, jnp.where(self.orbit.altitude > 0, beta, scanner_angle), jnp.nan)
+
+    def scanner_angle_from_central(self, central_angle):
+        """Inverse of :meth:`central_angle`: tan ψ = sin β / ((R+H)/R − cos β)."""
+        ratio = (self.orbit.radius + self.orbit.altitude) / self.orbit.radius
+        return jnp.arctan2(jnp.sin(central_angle), ratio - jnp.cos(central_angle))
+
+    def forward(self, pixel, scan):
+        """Latitude and longitude (radians, on the sphere) of fractional 1-based ``pixel``, ``scan``.
+
+        Source 001 eqs 3.3-8, 3.3-9 with the Earth-rotation term 3.3-10 in the form of DESIGN.md.
+
+        Args:
+            pixel, scan: ``(...)`` broadcastable.
+
+        Returns:
+            ``(latitude, longitude)``, each ``(...)``; longitude in (-π, π]. Outside jit, pixels whose line of
+            sight misses the Earth (H > 0) raise :class:`~seaice_jax.errors.GeometryError`.
+        """
+        latitude, longitude = self._forward(pixel, scan)
+        raise_where_nan(latitude, "pixel", "the scanner's line of sight misses the Earth")
+        return latitude, longitude
+
+    def _forward(self, pixel, scan):
+        pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
+        beta = self.central_angle(self.scanner_angle(pixel))
+        eta = self.orbital_angle(scan)
+        inc = self.orbit.inclination
+        cb, sb, ce, se = jnp.cos(beta), jnp.sin(beta), jnp.cos(eta), jnp.sin(eta)
+        # cos β u(η) − sin β n in the frame with the ascending node on the x axis.
+        gx = cb * ce
+        gy = cb * se * jnp.cos(inc) + sb * jnp.sin(inc)
+        gz = cb * se * jnp.sin(inc) - sb * jnp.cos(inc)
+        latitude = jnp.arctan2(gz, jnp.hypot(gx, gy))
+        longitude = self.ascending_node + jnp.arctan2(gy, gx) - self.orbit.rotation_ratio * eta
+        return latitude, _wrap(longitude)
+
+    def inverse(self, latitude, longitude, iterations=8):
+        """Fractional 1-based ``(pixel, scan)`` of a point given by latitude and longitude (radians).
+
+        Closed form for a stationary Earth; the Earth-rotation term is resolved by ``iterations`` fixed-point
+        steps (each shrinks the error by T_s/T_e ≈ 0.07). The orbital angle is taken on the branch nearest the
+        image's centre line.
+
+        Args:
+            latitude, longitude: ``(...)`` radians.
+
+        Returns:
+            ``(pixel, scan)``, each ``(...)``.
+        """
+        latitude = jnp.asarray(latitude, float)
+        if not is_traced(latitude) and bool(jnp.any(jnp.abs(latitude) > jnp.pi / 2)):
+            raise ValueError("latitude out of range [-90°, 90°] at index "
+                             f"{jnp.argwhere(jnp.abs(latitude) > jnp.pi / 2).tolist()[:10]}")
+        latitude, longitude = jnp.broadcast_arrays(latitude, jnp.asarray(longitude, float))
+        inc = self.orbit.inclination
+        eta_centre = self.orbital_angle(0.5 * (1.0 + self.n_scans))
+        eta = jnp.broadcast_to(eta_centre, latitude.shape)
+        for _ in range(iterations):
+            relative = longitude - self.ascending_node + self.orbit.rotation_ratio * eta
+            g = unit_vector(latitude, relative)
+            gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
+            in_plane = gy * jnp.cos(inc) + gz * jnp.sin(inc)
+            eta = eta_centre + _wrap(jnp.arctan2(in_plane, gx) - eta_centre)
+        beta = jnp.arcsin(jnp.clip(gy * jnp.sin(inc) - gz * jnp.cos(inc), -1.0, 1.0))
+        psi = jnp.where(self.orbit.altitude > 0, self.scanner_angle_from_central(beta), beta)
+        pixel = self.subtrack_pixel - psi * (self.n_pixels - 1) / self.scanner_angle_span
+        scan = 1.0 + (eta - self.orbital_angle_first) * (self.n_scans - 1) / (
+            self._eta_sign * self.orbital_angle_span
+        )
+        return pixel, scan
+
+
+def _wrap(angle):
+    """Angle wrapped into (-π, π]."""
+    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+
+
+class SatelliteOrbit(eqx.Module):
+    """Nominal orbit of a satellite in the 1985 program's menu (source 001, Appendix A, VHR2 function 6).
+
+    Attributes:
+        period_minutes, inclination_degrees, altitude_km: nominal mean values.
+        source: where the numbers come from.
+    """
+
+    period_minutes: float = eqx.field(static=True)
+    inclination_degrees: float = eqx.field(static=True)
+    altitude_km: float = eqx.field(static=True)
+    source: str = eqx.field(static=True)
+
+
+SATELLITES: dict[str, SatelliteOrbit] = {
+    # NSSDCA master catalogue 1974-089A: perigee 1444 km, apogee 1459 km, 114.9 min, 101.7 deg.
+    # The period 114.90 also appears in the VHR2 operator's manual example (source 001, Appendix A).
+    "NOAA-4": SatelliteOrbit(114.90, 101.7, 1451.0, "NSSDCA 1974-089A; source 001 App. A example period"),
+    # NSSDCA master catalogue 1976-077A: perigee 1504 km, apogee 1522 km, 116.2 min, 102.1 deg.
+    "NOAA-5": SatelliteOrbit(116.2, 102.1, 1513.0, "NSSDCA 1976-077A"),
+    # NSSDCA master catalogue 1979-057A: perigee 796 km, apogee 812 km, 101.2 min, 98.7 deg.
+    "NOAA-6": SatelliteOrbit(101.2, 98.7, 804.0, "NSSDCA 1979-057A"),
+    # NSSDCA master catalogue 1978-096A: perigee 847 km, apogee 866 km, 102.1 min, 98.9 deg.
+    "TIROS-N": SatelliteOrbit(102.1, 98.9, 856.0, "NSSDCA 1978-096A"),
+    # Period and maximum latitude as printed by the 1985 program for the NOAA-7 Lancaster Sound imagery
+    # (source 001, Figure 3-3: ORBITAL PERIOD 102.03, ORB MAX LATITUDE 81.10 -> i = 98.90 deg);
+    # altitude NSSDCA master catalogue 1981-059A: perigee 847 km, apogee 868 km.
+    "NOAA-7": SatelliteOrbit(102.03, 98.90, 857.0, "source 001 Figure 3-3; NSSDCA 1981-059A"),
+    # NSSDCA master catalogue 1972-058A: perigee 907 km, apogee 915 km, 103.3 min, 99.1 deg.
+    "LANDSAT-1": SatelliteOrbit(103.3, 99.1, 911.0, "NSSDCA 1972-058A"),
+    # NSSDCA master catalogue 1975-004A: perigee 908 km, apogee 918 km, 103.2 min, 99.2 deg.
+    "LANDSAT-2": SatelliteOrbit(103.2, 99.2, 913.0, "NSSDCA 1975-004A"),
+    # NSSDCA master catalogue 1978-026A: perigee 900 km, apogee 919 km, 103.1 min, 99.1 deg.
+    "LANDSAT-3": SatelliteOrbit(103.1, 99.1, 910.0, "NSSDCA 1978-026A"),
+}
+
+
+def satellite_orbit(name: str, altitude=None, earth_day=SIDEREAL_DAY, radius=MEAN_RADIUS,
+                    period=None, max_latitude=None) -> Orbit:
+    """The :class:`Orbit` of a satellite from :data:`SATELLITES`, with optional overrides.
+
+    Args:
+        name: e.g. ``"NOAA-7"`` (case-insensitive; ``"LDSAT-1"`` as the 1985 menu spells it is accepted).
+        altitude: metres; ``None`` takes the table's; 0 for curvature-corrected images.
+        earth_day: seconds of one Earth rotation.
+        period: seconds, overrides the table.
+        max_latitude: radians, overrides the table's inclination (retrograde orbit assumed).
+    """
+    key = name.strip().upper().replace("LDSAT", "LANDSAT").replace("_", "-")
+    if key not in SATELLITES:
+        raise ValueError(f"unknown satellite {name!r}; known: {', '.join(SATELLITES)}")
+    entry = SATELLITES[key]
+    inclination = jnp.radians(entry.inclination_degrees) if max_latitude is None else jnp.pi - max_latitude
+    return Orbit(
+        inclination,
+        entry.period_minutes * 60.0 if period is None else period,
+        entry.altitude_km * 1000.0 if altitude is None else altitude,
+        earth_day,
+        radius,
+    )

@@ -1,0 +1,1 @@
+"""How raw measurements become geometry inputs (navigation records, radar image coordinates)."""
