@@ -25,6 +25,7 @@ def raise_where_nan(result, what: str, reason: str, vector_axes: int = 0):
     bad = np.isnan(np.asarray(result))
     for _ in range(vector_axes):
         bad = bad.any(axis=-1)
+    bad = np.atleast_1d(bad)
     if np.any(bad):
         indices = np.nonzero(bad)
         count = int(bad.sum())

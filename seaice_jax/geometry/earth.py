@@ -62,7 +62,9 @@ def sphere_to_cartesian(latitude, longitude, height=0.0, radius=MEAN_RADIUS):
     Returns:
         ``(..., 3)`` metres.
     """
-    return unit_vector(latitude, longitude) * (radius + jnp.asarray(height, float))[..., None]
+    direction = unit_vector(latitude, longitude)
+    distance = jnp.broadcast_to(radius + jnp.asarray(height, float), direction.shape[:-1])
+    return direction * distance[..., None]
 
 
 def cartesian_to_sphere(position, radius=MEAN_RADIUS):

@@ -17,6 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from seaice_jax.geometry._vectors import along
 from seaice_jax.geometry.earth import MEAN_RADIUS, WGS84_FLATTENING, WGS84_SEMI_MAJOR_AXIS, unit_vector
 
 
@@ -57,7 +58,7 @@ class TangentPlane(eqx.Module):
         e, n = jnp.broadcast_arrays(_as_float(x) / self.radius, _as_float(y) / self.radius)
         h2 = 1.0 - e**2 - n**2
         vertical = jnp.sqrt(jnp.where(h2 >= 0.0, h2, 0.0))
-        g = e[..., None] * east + n[..., None] * north + vertical[..., None] * up
+        g = along(e, east) + along(n, north) + along(vertical, up)
         latitude = jnp.arctan2(g[..., 2], jnp.hypot(g[..., 0], g[..., 1]))
         longitude = jnp.arctan2(g[..., 1], g[..., 0])
         return jnp.where(h2 >= 0.0, latitude, jnp.nan), jnp.where(h2 >= 0.0, longitude, jnp.nan)

@@ -78,11 +78,18 @@ def ground_point(
     return point
 
 
+def _broadcast_batch(vectors, scalars):
+    """Broadcast ``(..., 3)`` vectors and ``(...)`` scalars to one batch shape (explicitly, no rank promotion)."""
+    vectors = [jnp.asarray(x, float) for x in vectors]
+    scalars = [jnp.asarray(x, float) for x in scalars]
+    batch = jnp.broadcast_shapes(*(x.shape[:-1] for x in vectors), *(x.shape for x in scalars))
+    return ([jnp.broadcast_to(x, batch + (3,)) for x in vectors] + [jnp.broadcast_to(x, batch) for x in scalars])
+
+
 def _ground_point(position, velocity, slant_range, radius, sign, wavelength, doppler):
-    s = jnp.asarray(position, float)
-    v = jnp.asarray(velocity, float)
-    r = jnp.asarray(slant_range, float)
-    R = jnp.asarray(radius, float)
+    s, v, r, R, sign, wavelength, doppler = _broadcast_batch(
+        (position, velocity), (slant_range, radius, sign, wavelength, doppler)
+    )
     s_len = _norm(s)
     s_hat = s / s_len[..., None]
     a = (R**2 + s_len**2 - r**2) / (2.0 * s_len)
@@ -91,9 +98,7 @@ def _ground_point(position, velocity, slant_range, radius, sign, wavelength, dop
     u = jnp.cross(s, w)
     u = u / _norm(u)[..., None]
     below = s_len - a
-    b = (0.5 * jnp.asarray(wavelength, float) * jnp.asarray(doppler, float) * r + below * _dot(s_hat, v)) / _dot(
-        u, v
-    )
+    b = (0.5 * wavelength * doppler * r + below * _dot(s_hat, v)) / _dot(u, v)
     radicand = r**2 - b**2 - below**2
     visible = (radicand >= 0.0) & (r**2 <= s_len**2 - R**2)
     c = jnp.sqrt(jnp.where(visible, radicand, 1.0))

@@ -10,6 +10,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from seaice_jax.geometry._vectors import along
 from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
 
 
@@ -50,7 +51,8 @@ class CircularTrajectory(eqx.Module):
     def __call__(self, time):
         """Position ``(..., 3)`` m and velocity ``(..., 3)`` m/s at ``time`` ``(...)`` seconds."""
         angle = (jnp.asarray(time, float) - self.epoch) * self.angular_rate
-        c, s = jnp.cos(angle)[..., None], jnp.sin(angle)[..., None]
-        position = self.orbit_radius * (c * self.first_axis + s * self.second_axis)
-        velocity = self.orbit_radius * self.angular_rate * (-s * self.first_axis + c * self.second_axis)
+        c, s = jnp.cos(angle), jnp.sin(angle)
+        position = self.orbit_radius * (along(c, self.first_axis) + along(s, self.second_axis))
+        velocity = self.orbit_radius * self.angular_rate * (along(c, self.second_axis) - along(s, self.first_axis))
         return position, velocity
+
