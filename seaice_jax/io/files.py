@@ -1,0 +1,49 @@
+"""Atomic file output: every file is written under a temporary name and renamed, so an interrupted run never
+leaves a partial file that looks complete."""
+
+import contextlib
+import csv
+import os
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+
+
+def write_csv(path: str | os.PathLike, columns: Mapping[str, Sequence], float_format: str = "%.9g") -> Path:
+    """Write equal-length ``columns`` (name -> values) to a CSV with a header row, atomically.
+
+    Raises:
+        ValueError: naming the column whose length differs.
+    """
+    names = list(columns)
+    values = [np.asarray(columns[name]).reshape(-1) for name in names]
+    lengths = {name: v.size for name, v in zip(names, values, strict=True)}
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"{path}: columns differ in length: {lengths}")
+
+    def cell(x):
+        return float_format % x if isinstance(x, float | np.floating) else str(x)
+
+    with atomic_path(path) as temporary, open(temporary, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(names)
+        for row in zip(*values, strict=True):
+            writer.writerow([cell(x) for x in row])
+    return Path(path)

@@ -1,0 +1,99 @@
+"""The figures people look at. Every function writes a PNG atomically and returns its path."""
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from seaice_jax.io.files import atomic_path  # noqa: E402
+
+_DEG = np.pi / 180.0
+
+
+@dataclass(frozen=True)
+class MapLayer:
+    """Points or grid lines to draw on a map, in projected metres.
+
+    Attributes:
+        label: legend text.
+        x, y: ``(n_lines, n_samples)`` for a ``"grid"`` (drawn as lines along both axes), or ``(n,)`` points.
+        kind: ``"grid"``, ``"points"`` or ``"labelled"`` (points with ``names``).
+        names: labels for ``"labelled"`` points.
+    """
+
+    label: str
+    x: np.ndarray
+    y: np.ndarray
+    kind: str = "points"
+    names: Sequence[str] = ()
+
+
+@dataclass(frozen=True)
+class MapPanel:
+    """One map: a projection (``forward(lat, lon) -> (x, y)`` in metres), its layers and a title."""
+
+    projection: object
+    layers: Sequence[MapLayer]
+    title: str
+
+
+def _graticule(ax, projection, x_limits, y_limits):
+    """Meridians and parallels (1°/5° apart on small maps, 5°/20° on large ones) on projected axes."""
+    span_km = max(np.ptp(x_limits), np.ptp(y_limits)) / 1000.0
+    lat_step, lon_step = (1.0, 5.0) if span_km < 1500 else (5.0, 20.0)
+    latitude_grid = np.linspace(40.0, 89.9, 400) * _DEG
+    for lon in np.arange(-180.0, 180.0, lon_step):
+        x, y = projection.forward(latitude_grid, np.full_like(latitude_grid, lon * _DEG))
+        ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
+    longitude_grid = np.linspace(-180.0, 180.0, 1441) * _DEG
+    for lat in np.arange(40.0, 90.0, lat_step):
+        x, y = projection.forward(np.full_like(longitude_grid, lat * _DEG), longitude_grid)
+        ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
+
+
+def _draw_panel(ax, panel: MapPanel):
+    xs = np.concatenate([np.ravel(layer.x) for layer in panel.layers])
+    ys = np.concatenate([np.ravel(layer.y) for layer in panel.layers])
+    margin = 0.1 * max(np.nanmax(xs) - np.nanmin(xs), np.nanmax(ys) - np.nanmin(ys))
+    x_limits = (np.nanmin(xs) - margin, np.nanmax(xs) + margin)
+    y_limits = (np.nanmin(ys) - margin, np.nanmax(ys) + margin)
+    _graticule(ax, panel.projection, x_limits, y_limits)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for colour, layer in zip(colours * 3, panel.layers, strict=False):
+        if layer.kind == "grid":
+            ax.plot(layer.x, layer.y, color=colour, lw=0.5)
+            ax.plot(layer.x.T, layer.y.T, color=colour, lw=0.5)
+            ax.plot([], [], color=colour, label=layer.label)
+        else:
+            ax.scatter(layer.x, layer.y, s=14, color=colour, label=layer.label, zorder=3)
+            for name, x, y in zip(layer.names, layer.x, layer.y, strict=False):
+                ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
+    ax.set_xlim(*x_limits)
+    ax.set_ylim(*y_limits)
+    ax.set_aspect("equal")
+    kilometres = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:.0f}")
+    ax.xaxis.set_major_formatter(kilometres)
+    ax.yaxis.set_major_formatter(kilometres)
+    ax.set_xlabel("x (km)")
+    ax.set_ylabel("y (km)")
+    ax.set_title(panel.title, fontsize=9)
+    ax.legend(loc="best", fontsize=7)
+
+
+def plot_maps(path: str | os.PathLike, panels: Sequence[MapPanel], title: str) -> Path:
+    """Maps side by side, each with a graticule, axes in projected kilometres; written atomically as PNG."""
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 6.5), squeeze=False)
+    for ax, panel in zip(axes[0], panels, strict=True):
+        _draw_panel(ax, panel)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    with atomic_path(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=110)
+    plt.close(fig)
+    return Path(path)

@@ -1,0 +1,1 @@
+"""Synthetic but physically faithful scenarios whose truth is known."""

@@ -1,0 +1,55 @@
+import csv
+
+import numpy as np
+import pytest
+
+from seaice_jax.cli import main
+from seaice_jax.demo import run_demo
+from seaice_jax.io.files import atomic_path, write_csv
+
+
+def read_csv(path):
+    with open(path, newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
+    result = run_demo(tmp_path / "out")
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == ["figure_3_3_stations.csv", "map.png", "radar_strip.csv", "satellite_image.csv"]
+    assert (tmp_path / "out" / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    radar = read_csv(tmp_path / "out" / "radar_strip.csv")
+    assert len(radar) == result.radar_points
+    lat = np.array([float(r["latitude_deg"]) for r in radar])
+    assert np.all((lat > 74.0) & (lat < 76.0))
+    assert result.radar_time_error_s < 1e-6 and result.radar_range_error_m < 1e-3
+    assert result.image_round_trip_pixels < 1e-6
+    assert result.station_dlat_difference_arcmin < 1.5 and result.station_dlon_difference_arcmin < 1.5
+    stations = read_csv(tmp_path / "out" / "figure_3_3_stations.csv")
+    assert [row["id"] for row in stations] == ["3030", "3031", "3032", "3034", "3035"]
+    assert "Figure 3-3 stations" in result.summary
+
+
+def test_cli_demo_and_usage_errors(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path / "cli")]) == 0
+    assert "seaice_jax demo" in capsys.readouterr().out
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    assert main(["demo", "--out", str(blocker)]) == 2
+    assert "seaice demo: error" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["no-such-command"])
+
+
+def test_csv_is_atomic_and_names_the_bad_column(tmp_path):
+    target = tmp_path / "table.csv"
+    with pytest.raises(ValueError, match=r"columns differ in length: \{'a': 2, 'b': 3\}"):
+        write_csv(target, {"a": [1.0, 2.0], "b": [1.0, 2.0, 3.0]})
+    assert list(tmp_path.iterdir()) == []
+    write_csv(target, {"a": [0.5, 2.0], "name": ["x", "y"]})
+    assert read_csv(target) == [{"a": "0.5", "name": "x"}, {"a": "2", "name": "y"}]
+    with pytest.raises(RuntimeError), atomic_path(target) as temporary:
+        temporary.write_text("half")
+        raise RuntimeError("interrupted")
+    assert read_csv(target)[0]["a"] == "0.5"  # the old complete file is untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["table.csv"]
