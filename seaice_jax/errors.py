@@ -19,3 +19,15 @@ class GeometryError(SeaiceError):
     def __init__(self, message: str, indices=()):
         super().__init__(message)
         self.indices = indices
+
+
+class RankDeficiencyError(SeaiceError):
+    """The observations cannot determine some parameters (a datum defect, too few or badly placed points).
+
+    Attributes:
+        parameters: names of the parameters involved in the undetermined combinations.
+    """
+
+    def __init__(self, message: str, parameters=()):
+        super().__init__(message)
+        self.parameters = tuple(parameters)

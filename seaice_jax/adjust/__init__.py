@@ -1,0 +1,1 @@
+"""Estimation: one weighted least-squares engine and its quality control."""
