@@ -114,7 +114,8 @@ def test_monte_carlo_statistics_match_predictions(model, truth, noise_scale):
     truth = as_params(truth)
     sigma = SIGMA * noise_scale
     clean = np.asarray(model(truth, None)["y"])
-    solve, names, dof = make_solver(model, truth, {"y": Observations(clean, sigma)})
+    solve = make_solver(model, truth, {"y": Observations(clean, sigma)})
+    names, dof = solve.parameter_names, solve.degrees_of_freedom
     noise = np.random.default_rng(7).normal(0, sigma, (n_runs, T.size))
     results = jax.jit(jax.vmap(lambda y: solve({"y": y})))(clean + noise)
     assert bool(jnp.all(results.converged))

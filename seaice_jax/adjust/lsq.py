@@ -89,6 +89,28 @@ def _leaf_names(tree) -> list[str]:
     return names
 
 
+class Solver:
+    """A set-up adjustment (from :func:`make_solver`): call it with observed values to adjust.
+
+    Attributes:
+        parameter_names: names of the free scalar unknowns.
+        degrees_of_freedom: observations + priors − unknowns.
+        start: ``(u,)`` the free unknowns' initial values.
+    """
+
+    def __init__(self, solve, whitened, flatten, parameter_names, degrees_of_freedom, start):
+        self._solve, self._whitened, self.flatten = solve, whitened, flatten
+        self.parameter_names, self.degrees_of_freedom, self.start = parameter_names, degrees_of_freedom, start
+
+    def __call__(self, observed, args=None, start=None) -> "Adjustment":
+        """Adjust to ``observed`` (``{group: values}``), from ``start`` (a parameter pytree) or the initial values."""
+        return self._solve(observed, args, start)
+
+    def jacobian_at(self, x, observed, args=None):
+        """``(m, u)`` Jacobian of the whitened residuals at the free-unknown vector ``x``."""
+        return jax.jacfwd(self._whitened)(x, ({g: jnp.asarray(v, float) for g, v in observed.items()}, args))
+
+
 def make_solver(
     model: Callable[[PyTree, object], Mapping[str, Array]],
     parameters: PyTree,
@@ -100,10 +122,10 @@ def make_solver(
     max_steps: int = 64,
     tolerance: float = 1e-12,
 ):
-    """Set up an adjustment; return ``(solve, names, degrees_of_freedom)``.
+    """Set up an adjustment and return its :class:`Solver`.
 
-    ``solve(observed: {group: values}, args=None, start=None) -> Adjustment`` is pure: jit it, vmap it over Monte
-    Carlo realizations (the observation σ, priors and the structure are fixed here; the values vary).
+    ``solver(observed: {group: values}, args=None, start=None) -> Adjustment`` is pure: jit it, vmap it over
+    Monte Carlo realizations (the observation σ, priors and the structure are fixed here; the values vary).
 
     Args:
         model: ``model(parameters, args) -> {group: predicted values}``, one entry per observation group, each
@@ -152,6 +174,9 @@ def make_solver(
         parts.append((x[prior_index] - prior_vector) / prior_sigma_vector)
         return jnp.concatenate(parts)
 
+    def flatten(tree):
+        return ravel_pytree(eqx.partition(tree, free)[0])[0]
+
     def solve(observed, args=None, start=None):
         observed = {g: jnp.asarray(observed[g], float) for g in groups}
         x_start = x0 if start is None else flatten(start)
@@ -199,16 +224,7 @@ def make_solver(
             converged=converged,
         )
 
-    def jacobian_at(x, observed, args=None):
-        return jax.jacfwd(whitened)(x, ({g: jnp.asarray(observed[g], float) for g in groups}, args))
-
-    def flatten(tree):
-        return ravel_pytree(eqx.partition(tree, free)[0])[0]
-
-    solve.jacobian_at = jacobian_at
-    solve.flatten = flatten
-    solve.start = x0
-    return solve, names, dof
+    return Solver(solve, whitened, flatten, names, dof, x0)
 
 
 def undetermined_parameters(jacobian, names, relative_threshold=1e-10) -> list[str]:
@@ -235,11 +251,12 @@ def least_squares(model, parameters, observations, *, args=None, **options) -> A
         RankDeficiencyError: naming the parameters the observations cannot determine (checked at the start and at
             the solution), never a silent pseudo-inverse.
     """
-    solve, names, _ = make_solver(model, parameters, observations, **options)
+    solver = make_solver(model, parameters, observations, **options)
+    names = solver.parameter_names
     observed = {g: observations[g].values for g in observations}
-    _raise_if_rank_deficient(solve.jacobian_at(solve.start, observed, args), names, "at the initial values")
-    result = solve(observed, args)
-    _raise_if_rank_deficient(solve.jacobian_at(solve.flatten(result.parameters), observed, args), names,
+    _raise_if_rank_deficient(solver.jacobian_at(solver.start, observed, args), names, "at the initial values")
+    result = solver(observed, args)
+    _raise_if_rank_deficient(solver.jacobian_at(solver.flatten(result.parameters), observed, args), names,
                              "at the solution")
     return result
 
