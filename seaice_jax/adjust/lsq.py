@@ -120,7 +120,8 @@ def make_solver(
     prior_sigma: PyTree | None = None,
     prior_value: PyTree | None = None,
     max_steps: int = 64,
-    tolerance: float = 1e-12,
+    tolerance: float = 1e-10,
+    args=None,
 ):
     """Set up an adjustment and return its :class:`Solver`.
 
@@ -137,6 +138,8 @@ def make_solver(
             none); priors are pseudo-observations of the free unknowns.
         prior_value: the prior values (default: ``parameters``).
         max_steps, tolerance: of the nonlinear solver (relative and absolute, on the step).
+        args: model arguments for diagnosing a problem with fewer observations than unknowns (the
+            :class:`RankDeficiencyError` then names the undetermined parameters).
     """
     if free is None:
         free = jax.tree_util.tree_map(lambda _: True, parameters)
@@ -162,11 +165,6 @@ def make_solver(
         prior_vector = ravel_pytree(eqx.partition(reference, free)[0])[0][prior_index]
     n_observations = sum(int(np.size(sigmas[g])) for g in groups)
     dof = n_observations + prior_index.size - x0.size
-    if dof < 0:
-        raise RankDeficiencyError(
-            f"{x0.size} unknowns but only {n_observations} observations and {prior_index.size} priors: "
-            f"the parameters {', '.join(names)} cannot all be determined", names)
-
     def whitened(x, data):
         observed, args = data
         predicted = model(eqx.combine(unravel(x), fixed_part), args)
@@ -224,7 +222,14 @@ def make_solver(
             converged=converged,
         )
 
-    return Solver(solve, whitened, flatten, names, dof, x0)
+    solver = Solver(solve, whitened, flatten, names, dof, x0)
+    if dof < 0:
+        observed = {g: observations[g].values for g in groups}
+        undetermined = undetermined_parameters(solver.jacobian_at(x0, observed, args), names)
+        raise RankDeficiencyError(
+            f"{x0.size} unknowns but only {n_observations} observations and {prior_index.size} priors: "
+            f"the observations cannot determine {', '.join(undetermined)}", undetermined)
+    return solver
 
 
 def undetermined_parameters(jacobian, names, relative_threshold=1e-10) -> list[str]:
@@ -236,10 +241,12 @@ def undetermined_parameters(jacobian, names, relative_threshold=1e-10) -> list[s
     scale = np.linalg.norm(jacobian, axis=0)
     dead = scale == 0
     scaled = jacobian / np.where(dead, 1.0, scale)
-    singular_values, vt = np.linalg.svd(scaled, full_matrices=False)[1:]
+    singular_values, vt = np.linalg.svd(scaled, full_matrices=True)[1:]
+    # fewer observations than unknowns: the missing singular values are zero
+    singular_values = np.concatenate([singular_values, np.zeros(vt.shape[0] - singular_values.size)])
     involved = set(np.nonzero(dead)[0].tolist())
     for value, vector in zip(singular_values, vt, strict=True):
-        if value < np.sqrt(relative_threshold) * singular_values[0]:
+        if value <= np.sqrt(relative_threshold) * singular_values[0]:
             involved |= set(np.nonzero(np.abs(vector) > 0.1)[0].tolist())
     return [names[k] for k in sorted(involved)]
 
@@ -251,7 +258,7 @@ def least_squares(model, parameters, observations, *, args=None, **options) -> A
         RankDeficiencyError: naming the parameters the observations cannot determine (checked at the start and at
             the solution), never a silent pseudo-inverse.
     """
-    solver = make_solver(model, parameters, observations, **options)
+    solver = make_solver(model, parameters, observations, args=args, **options)
     names = solver.parameter_names
     observed = {g: observations[g].values for g in observations}
     _raise_if_rank_deficient(solver.jacobian_at(solver.start, observed, args), names, "at the initial values")

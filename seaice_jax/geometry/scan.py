@@ -71,6 +71,23 @@ class Orbit(eqx.Module):
         """T_s / T_e: Earth rotation (radians of longitude) per radian of orbital angle."""
         return self.period / self.earth_day
 
+    def central_angle(self, scanner_angle):
+        """Earth-central cross-track angle β from the scanner angle ψ: β = asin((R+H)/R sin ψ) − ψ (ψ if H = 0).
+
+        NaN where the line of sight misses the Earth.
+        """
+        ratio = (self.radius + self.altitude) / self.radius
+        sine = ratio * jnp.sin(scanner_angle)
+        hits = jnp.abs(sine) <= 1.0
+        beta = jnp.arcsin(jnp.where(hits, sine, 0.0)) - scanner_angle
+        return jnp.where(hits, jnp.where(self.altitude > 0, beta, scanner_angle), jnp.nan)
+
+    def scanner_angle_from_central(self, central_angle):
+        """Inverse of :meth:`central_angle`: tan ψ = sin β / ((R+H)/R − cos β) (ψ = β if H = 0)."""
+        ratio = (self.radius + self.altitude) / self.radius
+        psi = jnp.arctan2(jnp.sin(central_angle), ratio - jnp.cos(central_angle))
+        return jnp.where(self.altitude > 0, psi, central_angle)
+
 
 class ScanModel(eqx.Module):
     """The five per-image unknowns of the great-circle scan model and the fixed orbit.
@@ -147,22 +164,6 @@ class ScanModel(eqx.Module):
         fraction = (jnp.asarray(scan, float) - 1.0) / (self.n_scans - 1)
         return self.orbital_angle_first + self._eta_sign * self.orbital_angle_span * fraction
 
-    def central_angle(self, scanner_angle):
-        """Earth-central cross-track angle β from the scanner angle ψ: β = asin((R+H)/R sin ψ) − ψ (ψ if H = 0).
-
-        NaN where the line of sight misses the Earth.
-        """
-        ratio = (self.orbit.radius + self.orbit.altitude) / self.orbit.radius
-        sine = ratio * jnp.sin(scanner_angle)
-        hits = jnp.abs(sine) <= 1.0
-        beta = jnp.arcsin(jnp.where(hits, sine, 0.0)) - scanner_angle
-        return jnp.where(hits, jnp.where(self.orbit.altitude > 0, beta, scanner_angle), jnp.nan)
-
-    def scanner_angle_from_central(self, central_angle):
-        """Inverse of :meth:`central_angle`: tan ψ = sin β / ((R+H)/R − cos β)."""
-        ratio = (self.orbit.radius + self.orbit.altitude) / self.orbit.radius
-        return jnp.arctan2(jnp.sin(central_angle), ratio - jnp.cos(central_angle))
-
     def forward(self, pixel, scan):
         """Latitude and longitude (radians, on the sphere) of fractional 1-based ``pixel``, ``scan``.
 
@@ -181,7 +182,7 @@ class ScanModel(eqx.Module):
 
     def _forward(self, pixel, scan):
         pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
-        beta = self.central_angle(self.scanner_angle(pixel))
+        beta = self.orbit.central_angle(self.scanner_angle(pixel))
         eta = self.orbital_angle(scan)
         inc = self.orbit.inclination
         cb, sb, ce, se = jnp.cos(beta), jnp.sin(beta), jnp.cos(eta), jnp.sin(eta)
@@ -210,23 +211,40 @@ class ScanModel(eqx.Module):
         if not is_traced(latitude) and bool(jnp.any(jnp.abs(latitude) > jnp.pi / 2)):
             raise ValueError("latitude out of range [-90°, 90°] at index "
                              f"{jnp.argwhere(jnp.abs(latitude) > jnp.pi / 2).tolist()[:10]}")
-        latitude, longitude = jnp.broadcast_arrays(latitude, jnp.asarray(longitude, float))
-        inc = self.orbit.inclination
-        eta_centre = self.orbital_angle(0.5 * (1.0 + self.n_scans))
-        eta = jnp.broadcast_to(eta_centre, latitude.shape)
-        for _ in range(iterations):
-            relative = longitude - self.ascending_node + self.orbit.rotation_ratio * eta
-            g = unit_vector(latitude, relative)
-            gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
-            in_plane = gy * jnp.cos(inc) + gz * jnp.sin(inc)
-            eta = eta_centre + _wrap(jnp.arctan2(in_plane, gx) - eta_centre)
-        beta = jnp.arcsin(jnp.clip(gy * jnp.sin(inc) - gz * jnp.cos(inc), -1.0, 1.0))
-        psi = jnp.where(self.orbit.altitude > 0, self.scanner_angle_from_central(beta), beta)
+        eta, beta = orbit_coordinates(self.orbit, self.ascending_node, latitude, longitude,
+                                      self.orbital_angle(0.5 * (1.0 + self.n_scans)), iterations)
+        psi = self.orbit.scanner_angle_from_central(beta)
         pixel = self.subtrack_pixel - psi * (self.n_pixels - 1) / self.scanner_angle_span
         scan = 1.0 + (eta - self.orbital_angle_first) * (self.n_scans - 1) / (
             self._eta_sign * self.orbital_angle_span
         )
         return pixel, scan
+
+
+def orbit_coordinates(orbit: Orbit, ascending_node, latitude, longitude, orbital_angle_reference, iterations=8):
+    """Orbital angle η and Earth-central cross-track angle β of ground points, for an orbit and node.
+
+    The closed-form core of :meth:`ScanModel.inverse`: for a stationary Earth, β = −asin(g·n) and η is the
+    in-plane angle of g; Earth rotation adds (T_s/T_e) η to the longitude, resolved by fixed-point steps. η is
+    taken on the branch nearest ``orbital_angle_reference``.
+
+    Args:
+        latitude, longitude: ``(...)`` radians.
+
+    Returns:
+        ``(eta, beta)``, each ``(...)`` radians.
+    """
+    latitude, longitude = jnp.broadcast_arrays(jnp.asarray(latitude, float), jnp.asarray(longitude, float))
+    inc = orbit.inclination
+    eta = jnp.broadcast_to(orbital_angle_reference, latitude.shape)
+    for _ in range(iterations):
+        relative = longitude - ascending_node + orbit.rotation_ratio * eta
+        g = unit_vector(latitude, relative)
+        gx, gy, gz = g[..., 0], g[..., 1], g[..., 2]
+        in_plane = gy * jnp.cos(inc) + gz * jnp.sin(inc)
+        eta = orbital_angle_reference + _wrap(jnp.arctan2(in_plane, gx) - orbital_angle_reference)
+    beta = jnp.arcsin(jnp.clip(gy * jnp.sin(inc) - gz * jnp.cos(inc), -1.0, 1.0))
+    return eta, beta
 
 
 def _wrap(angle):

@@ -1,0 +1,334 @@
+"""Orbit and scan parameters of a satellite image from ground control points (source 001, VHR2 module).
+
+Two methods:
+
+* ``"gauss-newton"`` (default): the five unknowns of :class:`~seaice_jax.geometry.scan.ScanModel` estimated by
+  the weighted least-squares engine (:mod:`seaice_jax.adjust.lsq`), minimising the squared ground distances at the
+  control points (in latitude and longitude, each weighted by the point's σ in metres), with covariance and quality
+  control. No starting values are needed: :func:`initial_guess` scans the ascending node and, for each node, fits
+  the orbital and scanner angles of the control points by linear least squares.
+* ``"appendix_c"``: the 1985 search of source 001 Appendix C, kept as the baseline (see :mod:`.appendix_c`).
+
+``direction="auto"`` fits the southbound (descending) and the northbound (ascending) pass and keeps the better,
+as the 1985 operators did by hand ("order of magnitude differences in the control point errors").
+"""
+
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from seaice_jax.adjust.appendix_c import appendix_c_search
+from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
+from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import great_circle_distance
+from seaice_jax.geometry.scan import Orbit, ScanModel, orbit_coordinates
+
+FREE_PARAMETERS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
+                   "ascending_node")
+"""The five per-image unknowns, in the order the engine reports them."""
+
+FLAG_ARCMIN = 3.0
+"""Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
+
+
+class ControlPoints(eqx.Module):
+    """Ground control points of one image: image position, known position, and its ground σ.
+
+    Attributes:
+        pixel, scan: ``(n,)`` fractional 1-based image coordinates.
+        latitude, longitude: ``(n,)`` radians (on the model sphere).
+        sigma: ``(n,)`` metres, standard deviation of each horizontal coordinate at the ground (map accuracy
+            and image pointing combined).
+        ids: point identifiers (station numbers or names).
+    """
+
+    pixel: Float[Array, " n"]
+    scan: Float[Array, " n"]
+    latitude: Float[Array, " n"]
+    longitude: Float[Array, " n"]
+    sigma: Float[Array, " n"]
+    ids: tuple[str, ...] = eqx.field(static=True)
+
+    def __init__(self, pixel, scan, latitude, longitude, sigma=1000.0, ids=None):
+        arrays = [np.atleast_1d(np.asarray(a, float)) for a in (pixel, scan, latitude, longitude)]
+        n = arrays[0].size
+        ids = tuple(str(i) for i in (range(1, n + 1) if ids is None else ids))
+        if any(a.shape != (n,) for a in arrays) or len(ids) != n:
+            raise SeaiceError(f"control points: pixel, scan, latitude, longitude and ids must all have {n} entries")
+        seen = set()
+        for point_id in ids:
+            if point_id in seen:
+                raise SeaiceError(f"control point {point_id}: duplicate id")
+            seen.add(point_id)
+        for name, values in zip(("pixel", "scan", "latitude", "longitude"), arrays, strict=True):
+            bad = np.nonzero(~np.isfinite(values))[0]
+            if bad.size:
+                raise SeaiceError(f"control point {ids[bad[0]]}: {name} is not a finite number")
+        bad = np.nonzero(np.abs(arrays[2]) > np.pi / 2)[0]
+        if bad.size:
+            raise SeaiceError(f"control point {ids[bad[0]]}: latitude {np.degrees(arrays[2][bad[0]]):.4f}° is "
+                              "outside [-90°, 90°]")
+        sigma = np.broadcast_to(np.asarray(sigma, float), (n,))
+        bad = np.nonzero(~(sigma > 0))[0]
+        if bad.size:
+            raise SeaiceError(f"control point {ids[bad[0]]}: sigma must be > 0 metres")
+        self.pixel, self.scan, self.latitude, self.longitude = (jnp.asarray(a) for a in arrays)
+        self.sigma = jnp.asarray(sigma)
+        self.ids = ids
+
+    @classmethod
+    def from_degrees(cls, pixel, scan, latitude_deg, longitude_deg, sigma_km=1.0, ids=None):
+        """Control points with latitude/longitude in degrees and σ in kilometres."""
+        return cls(pixel, scan, np.radians(latitude_deg), np.radians(longitude_deg),
+                   np.asarray(sigma_km, float) * 1000.0, ids)
+
+    def __len__(self):
+        return len(self.ids)
+
+
+def free_mask(model: ScanModel):
+    """The engine's ``free`` pytree for a scan model: the five unknowns free, the orbit fixed."""
+    mask = jax.tree_util.tree_map(lambda _: False, model)
+    return eqx.tree_at(lambda m: tuple(getattr(m, name) for name in FREE_PARAMETERS), mask,
+                       replace=(True,) * len(FREE_PARAMETERS))
+
+
+def _predict(model: ScanModel, args):
+    """The control points' latitude and longitude (unwrapped next to ``reference_longitude``) from the model."""
+    pixel, scan, reference_longitude = args
+    latitude, longitude = model.forward(pixel, scan)
+    return {"latitude": latitude, "longitude": reference_longitude + _wrap(longitude - reference_longitude)}
+
+
+def _wrap(angle):
+    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+
+
+def _observations(control: ControlPoints, radius):
+    return {
+        "latitude": Observations(control.latitude, control.sigma / radius),
+        "longitude": Observations(control.longitude, control.sigma / (radius * jnp.cos(control.latitude))),
+    }
+
+
+def orbit_solver(control: ControlPoints, start: ScanModel) -> Solver:
+    """A pure, jit/vmap-able :class:`~seaice_jax.adjust.lsq.Solver` for this image's control-point layout.
+
+    Call it as ``solver({"latitude": lat, "longitude": lon}, args=control_args(control))``; the σ and image
+    positions are fixed, the known positions vary (Monte Carlo).
+    """
+    return make_solver(_predict, start, _observations(control, start.orbit.radius), free=free_mask(start))
+
+
+def control_args(control: ControlPoints):
+    """The model arguments for :func:`orbit_solver` (image positions and the longitude unwrapping reference)."""
+    return control.pixel, control.scan, jnp.mean(control.longitude)
+
+
+def initial_guess(control: ControlPoints, orbit: Orbit, direction: str, n_pixels: int = 512,
+                  n_scans: int = 512, node_steps: int = 720) -> ScanModel:
+    """Starting values from the control points alone (no operator input).
+
+    For each trial ascending node on a grid of ``node_steps`` (then refined 200-fold around the best), every
+    control point's orbital angle η and scanner angle ψ follow in closed form (:func:`orbit_coordinates`); the
+    model says η is linear in scan line and ψ linear in pixel, so two weighted straight-line fits give the other
+    four unknowns and a misfit. The node with the smallest misfit, among those putting every point on the pass's
+    branch (descending for ``"south"``, ascending for ``"north"``), wins.
+    """
+    branch = jnp.pi if direction == "south" else 0.0
+    weight = 1.0 / (control.sigma / orbit.radius)
+    scan_design = jnp.stack([jnp.ones_like(control.scan), control.scan - 1.0], 1) * weight[:, None]
+    pixel_design = jnp.stack([jnp.ones_like(control.pixel), control.pixel - 1.0], 1) * weight[:, None]
+
+    def misfit(node):
+        eta, beta = orbit_coordinates(orbit, node, control.latitude, control.longitude, branch)
+        psi = orbit.scanner_angle_from_central(beta)
+        eta_line, _, _, _ = jnp.linalg.lstsq(scan_design, eta * weight)
+        psi_line, _, _, _ = jnp.linalg.lstsq(pixel_design, psi * weight)
+        cost = jnp.sum((scan_design @ eta_line - eta * weight) ** 2) + jnp.sum(
+            (pixel_design @ psi_line - psi * weight) ** 2)
+        on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < jnp.pi / 2)
+        return jnp.where(on_branch, cost, jnp.inf), eta_line, psi_line
+
+    search = jax.jit(jax.vmap(misfit))
+    step = 2 * jnp.pi / node_steps
+    nodes = jnp.arange(node_steps) * step - jnp.pi
+    costs, _, _ = search(nodes)
+    best = nodes[jnp.argmin(costs)]
+    nodes = best + jnp.linspace(-step, step, 401)
+    costs, eta_lines, psi_lines = search(nodes)
+    k = int(jnp.argmin(costs))
+    if not np.isfinite(float(costs[k])):
+        raise SeaiceError(f"no {direction}bound pass of this orbit puts all {len(control)} control points on one "
+                          "side of the orbit's apex; try the other direction")
+    sign = 1.0 if direction == "south" else -1.0
+    eta_first, eta_rate = eta_lines[k]
+    psi_first, psi_rate = psi_lines[k]
+    return ScanModel(
+        scanner_angle_span=-psi_rate * (n_pixels - 1),
+        subtrack_pixel=1.0 - psi_first / psi_rate,
+        orbital_angle_first=eta_first,
+        orbital_angle_span=sign * eta_rate * (n_scans - 1),
+        ascending_node=_wrap(nodes[k]),
+        orbit=orbit, direction=direction, n_pixels=n_pixels, n_scans=n_scans,
+    )
+
+
+@dataclass(frozen=True)
+class OrbitFit:
+    """A fitted image: the model, the control points and how well they agree.
+
+    Attributes:
+        model: the fitted :class:`ScanModel`.
+        control: the control points used.
+        method: ``"gauss-newton"`` or ``"appendix_c"``.
+        iterations: nonlinear iterations (Gauss-Newton steps, or Appendix C position evaluations).
+        adjustment: the engine's result (covariance, residuals, redundancy, w-tests); ``None`` for Appendix C.
+        alternatives: ``{direction: RMS ground distance in km}`` of every direction tried.
+    """
+
+    model: ScanModel
+    control: ControlPoints
+    method: str
+    iterations: int
+    adjustment: Adjustment | None = None
+    alternatives: dict = field(default_factory=dict)
+
+    def computed_positions(self):
+        """Latitude and longitude (radians) the model gives at the control points."""
+        return self.model.forward(self.control.pixel, self.control.scan)
+
+    @property
+    def dlat_arcmin(self):
+        """Computed minus known latitude at each control point, arc minutes (source 001 eq. C-8)."""
+        return np.degrees(np.asarray(self.computed_positions()[0] - self.control.latitude)) * 60.0
+
+    @property
+    def dlon_arcmin(self):
+        """Computed minus known longitude at each control point, arc minutes (eq. C-9)."""
+        return np.degrees(np.asarray(_wrap(self.computed_positions()[1] - self.control.longitude))) * 60.0
+
+    @property
+    def dev_arcmin(self):
+        """The printout's DEV row: sample standard deviations of DLAT and DLONG (eqs C-13, C-14)."""
+        n = len(self.control)
+        if n < 2:
+            return float("nan"), float("nan")
+        return float(np.std(self.dlat_arcmin, ddof=1)), float(np.std(self.dlon_arcmin, ddof=1))
+
+    @property
+    def error_km(self):
+        """Ground distance between computed and known position at each control point, km."""
+        lat, lon = self.computed_positions()
+        return np.asarray(great_circle_distance(lat, lon, self.control.latitude, self.control.longitude,
+                                                self.model.orbit.radius)) / 1000.0
+
+    @property
+    def rms_km(self):
+        """RMS ground distance at the control points, km."""
+        return float(np.sqrt(np.mean(self.error_km**2)))
+
+    @property
+    def flagged_1985(self):
+        """Stations with |DLAT| or |DLONG| beyond 3 arc minutes, as the 1985 program flagged them."""
+        return (np.abs(self.dlat_arcmin) > FLAG_ARCMIN) | (np.abs(self.dlon_arcmin) > FLAG_ARCMIN)
+
+    def w_statistics(self):
+        """``(w_latitude, w_longitude)`` Baarda w-statistics per station (NaN for Appendix C)."""
+        if self.adjustment is None:
+            nan = np.full(len(self.control), np.nan)
+            return nan, nan
+        w = self.adjustment.standardized_residuals
+        return np.asarray(w["latitude"]), np.asarray(w["longitude"])
+
+    def flagged_w_test(self, alpha=DEFAULT_ALPHA):
+        """Stations whose latitude or longitude w-statistic exceeds the critical value (data snooping)."""
+        w_lat, w_lon = self.w_statistics()
+        limit = float(critical_value(alpha))
+        return (np.abs(w_lat) > limit) | (np.abs(w_lon) > limit)
+
+
+def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "auto", n_pixels: int = 512,
+                   n_scans: int = 512, method: str = "gauss-newton", search_options: dict | None = None) -> OrbitFit:
+    """Fit the five scan-model unknowns of one image to its control points.
+
+    Args:
+        control: at least three points (more to have redundancy and quality control).
+        orbit: the satellite's orbit (inclination, period, altitude H — 0 for curvature-corrected images —
+            and the Earth day T_e).
+        direction: ``"south"``, ``"north"`` or ``"auto"`` (fit both, keep the smaller RMS).
+        method: ``"gauss-newton"`` or ``"appendix_c"``.
+        search_options: for ``"appendix_c"``, the operator's entries (``start_subtrack``, ``search_span``,
+            ``initial_spans``, ``f_gamma``, ``f_beta``; see :func:`~seaice_jax.adjust.appendix_c.appendix_c_search`).
+
+    Raises:
+        RankDeficiencyError: naming the unknowns the control points cannot determine (too few, collinear).
+    """
+    if direction not in ("south", "north", "auto"):
+        raise SeaiceError(f"direction must be 'south', 'north' or 'auto', got {direction!r}")
+    if method not in ("gauss-newton", "appendix_c"):
+        raise SeaiceError(f"method must be 'gauss-newton' or 'appendix_c', got {method!r}")
+    directions = ("south", "north") if direction == "auto" else (direction,)
+    fits, failures = {}, {}
+    for candidate in directions:
+        try:
+            fits[candidate] = _fit_one(control, orbit, candidate, n_pixels, n_scans, method, search_options or {})
+        except SeaiceError as error:
+            if direction != "auto" or type(error) is not SeaiceError:
+                raise
+            failures[candidate] = error
+    if not fits:
+        raise SeaiceError("; ".join(f"{d}: {e}" for d, e in failures.items()))
+    alternatives = {d: f.rms_km for d, f in fits.items()}
+    best = min(fits.values(), key=lambda f: f.rms_km)
+    return OrbitFit(best.model, best.control, best.method, best.iterations, best.adjustment, alternatives)
+
+
+def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_options):
+    if method == "appendix_c":
+        model, evaluations = appendix_c_search(control, orbit, direction, n_pixels, n_scans, **search_options)
+        return OrbitFit(model, control, method, evaluations)
+    start = initial_guess(control, orbit, direction, n_pixels, n_scans)
+    adjustment = least_squares(_predict, start, _observations(control, orbit.radius), args=control_args(control),
+                               free=free_mask(start))
+    if not bool(adjustment.converged):
+        raise SeaiceError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} steps")
+    return OrbitFit(adjustment.parameters, control, method, int(adjustment.steps), adjustment)
+
+
+def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):
+    """Standard deviations (m) of the ground position of image points, from the fit's covariance.
+
+    Propagates the covariance of the five unknowns through the forward model (autodiff Jacobian).
+
+    Args:
+        pixel, scan: ``(...)`` image coordinates (e.g. a grid, for a map of the uncertainty).
+        a_priori: use the cofactor (σ of the control points taken as right) instead of σ̂0²·cofactor.
+
+    Returns:
+        ``(sigma_north, sigma_east)``, each ``(...)`` metres.
+    """
+    if fit.adjustment is None:
+        raise SeaiceError("position uncertainty needs a Gauss-Newton fit (Appendix C gives no covariance)")
+    covariance = fit.adjustment.cofactor if a_priori else fit.adjustment.covariance
+    model = fit.model
+    radius = model.orbit.radius
+
+    def position(values, p, s):
+        m = eqx.tree_at(lambda mm: tuple(getattr(mm, n) for n in FREE_PARAMETERS), model,
+                        replace=tuple(values))
+        lat, lon = m.forward(p, s)
+        # local north and east displacements: the parallel's radius is held fixed
+        return jnp.stack([radius * lat, radius * jax.lax.stop_gradient(jnp.cos(lat)) * lon])
+
+    values = jnp.stack([getattr(model, n) for n in FREE_PARAMETERS])
+    pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
+    jac = jax.vmap(jax.jacfwd(position), in_axes=(None, 0, 0))(values, pixel.reshape(-1), scan.reshape(-1))
+    variance = jnp.einsum("nij,jk,nik->ni", jac, covariance, jac)
+    sigma = jnp.sqrt(variance)
+    return sigma[:, 0].reshape(pixel.shape), sigma[:, 1].reshape(pixel.shape)
