@@ -1,0 +1,172 @@
+"""Station catalogues and control-point measurements (source 001, Appendix A, VHR2 function 3).
+
+* The AGRID station catalogue (``IM3:AGRID.STN``): one station per line, fixed columns — number 1-5, blanks 6-10,
+  name 11-40, latitude degree 41-45, minute 46-50, longitude degree 51-55, minute 56-60; numbers right-justified,
+  the name left-justified. The sign of a coordinate is carried by its degree field ("-0" for a negative
+  coordinate under one degree).
+* Measurements as CSV: ``id,name,pixel,scan,lat,lon`` (decimal degrees), or ``id,pixel,scan`` joined to a
+  catalogue; an optional ``sigma_km`` column gives each point's ground standard deviation.
+
+Every error names the file and line.
+"""
+
+import csv
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seaice_jax.adjust.orbit_fit import ControlPoints
+from seaice_jax.errors import SeaiceError
+from seaice_jax.io.files import atomic_path
+
+
+@dataclass(frozen=True)
+class Station:
+    """A catalogue station: number, name and position in decimal degrees."""
+
+    number: int
+    name: str
+    latitude_deg: float
+    longitude_deg: float
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """A control point measured on an image: id, name, pixel, scan, known position (degrees), σ (km or None)."""
+
+    id: str
+    name: str
+    pixel: float
+    scan: float
+    latitude_deg: float
+    longitude_deg: float
+    sigma_km: float | None = None
+
+
+def _field(line: str, start: int, end: int) -> str:
+    return line[start - 1:end].strip()
+
+
+def _degrees_minutes(degrees: str, minutes: str, where: str, what: str) -> float:
+    try:
+        d, m = float(degrees), float(minutes or 0.0)
+    except ValueError:
+        raise SeaiceError(f"{where}: {what} degree {degrees!r} / minute {minutes!r} is not a number") from None
+    if not 0.0 <= m < 60.0:
+        raise SeaiceError(f"{where}: {what} minute {m} is outside [0, 60)")
+    sign = -1.0 if degrees.startswith("-") else 1.0
+    return sign * (abs(d) + m / 60.0)
+
+
+def read_agrid(path: str | os.PathLike) -> list[Station]:
+    """Read an AGRID station catalogue. Blank lines are skipped."""
+    stations, seen = [], {}
+    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        where = f"{path}, line {number}"
+        if len(line.rstrip()) < 51:
+            raise SeaiceError(f"{where}: too short for the AGRID layout (columns 1-60), got {len(line.rstrip())}")
+        try:
+            station_number = int(_field(line, 1, 5))
+        except ValueError:
+            raise SeaiceError(f"{where}: station number {_field(line, 1, 5)!r} (columns 1-5) is not an integer") \
+                from None
+        if station_number <= 0:
+            raise SeaiceError(f"{where}: station number must be > 0, got {station_number}")
+        if station_number in seen:
+            raise SeaiceError(f"{where}: station {station_number} already defined on line {seen[station_number]}")
+        seen[station_number] = number
+        latitude = _degrees_minutes(_field(line, 41, 45), _field(line, 46, 50), where, "latitude")
+        longitude = _degrees_minutes(_field(line, 51, 55), _field(line, 56, 60), where, "longitude")
+        if abs(latitude) > 90.0:
+            raise SeaiceError(f"{where}: latitude {latitude:.4f}° is outside [-90°, 90°]")
+        if abs(longitude) > 360.0:
+            raise SeaiceError(f"{where}: longitude {longitude:.4f}° is outside [-360°, 360°]")
+        stations.append(Station(station_number, _field(line, 11, 40), latitude, longitude))
+    return stations
+
+
+def _format_degrees_minutes(value: float) -> tuple[str, str]:
+    total_minutes = round(abs(value) * 60.0, 2)
+    degrees, minutes = divmod(total_minutes, 60.0)
+    sign = "-" if value < 0 else ""
+    return f"{sign}{int(degrees)}", f"{minutes:.2f}".rstrip("0").rstrip(".")
+
+
+def write_agrid(path: str | os.PathLike, stations) -> Path:
+    """Write stations in the AGRID layout (minutes to 0.01'), atomically."""
+    lines = []
+    for station in stations:
+        if not 0 < station.number <= 99999:
+            raise SeaiceError(f"station {station.number}: number must be 1-99999 to fit columns 1-5")
+        lat_d, lat_m = _format_degrees_minutes(station.latitude_deg)
+        lon_d, lon_m = _format_degrees_minutes(station.longitude_deg)
+        lines.append(f"{station.number:>5}{'':5}{station.name[:30]:<30}{lat_d:>5}{lat_m:>5}{lon_d:>5}{lon_m:>5}")
+    with atomic_path(path) as temporary:
+        temporary.write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
+def _number(row, column, where):
+    text = (row.get(column) or "").strip()
+    try:
+        value = float(text)
+    except ValueError:
+        raise SeaiceError(f"{where}: column {column!r} value {text!r} is not a number") from None
+    if not np.isfinite(value):
+        raise SeaiceError(f"{where}: column {column!r} is not finite")
+    return value
+
+
+def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None = None) -> list[Measurement]:
+    """Read control-point measurements from CSV (see the module docstring for the columns)."""
+    by_number = {str(s.number): s for s in catalogue or []}
+    with open(path, newline="") as stream:
+        reader = csv.DictReader(stream)
+        columns = {c.strip() for c in reader.fieldnames or []}
+        required = {"id", "pixel", "scan"} | (set() if catalogue else {"lat", "lon"})
+        missing = sorted(required - columns)
+        if missing:
+            raise SeaiceError(f"{path}, line 1: missing column(s) {', '.join(missing)} "
+                              f"(have {', '.join(sorted(columns)) or 'none'})")
+        measurements, seen = [], {}
+        for line_number, raw in enumerate(reader, start=2):
+            row = {k.strip(): v for k, v in raw.items() if k is not None}
+            where = f"{path}, line {line_number}"
+            point = (row.get("id") or "").strip()
+            if not point:
+                raise SeaiceError(f"{where}: empty id")
+            if point in seen:
+                raise SeaiceError(f"{where}: point {point} already measured on line {seen[point]}")
+            seen[point] = line_number
+            has_position = (row.get("lat") or "").strip() != ""
+            if has_position:
+                latitude, longitude = _number(row, "lat", where), _number(row, "lon", where)
+                name = (row.get("name") or "").strip()
+            elif point in by_number:
+                station = by_number[point]
+                latitude, longitude, name = station.latitude_deg, station.longitude_deg, station.name
+            else:
+                raise SeaiceError(f"{where}: point {point} has no lat/lon and is not in the station catalogue")
+            if abs(latitude) > 90.0:
+                raise SeaiceError(f"{where}: point {point} latitude {latitude}° is outside [-90°, 90°]")
+            sigma = _number(row, "sigma_km", where) if (row.get("sigma_km") or "").strip() else None
+            if sigma is not None and sigma <= 0:
+                raise SeaiceError(f"{where}: point {point} sigma_km must be > 0")
+            measurements.append(Measurement(point, name, _number(row, "pixel", where), _number(row, "scan", where),
+                                            latitude, longitude, sigma))
+    return measurements
+
+
+def control_points(measurements: list[Measurement], default_sigma_km: float = 1.0) -> ControlPoints:
+    """Measurements as :class:`ControlPoints` (σ from each measurement, else ``default_sigma_km``)."""
+    if not measurements:
+        raise SeaiceError("no control-point measurements")
+    return ControlPoints.from_degrees(
+        [m.pixel for m in measurements], [m.scan for m in measurements],
+        [m.latitude_deg for m in measurements], [m.longitude_deg for m in measurements],
+        [default_sigma_km if m.sigma_km is None else m.sigma_km for m in measurements],
+        [m.id for m in measurements])
