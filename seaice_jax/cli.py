@@ -14,6 +14,38 @@ def _demo(args) -> int:
     return 0
 
 
+def _rectify(args) -> int:
+    import numpy as np
+
+    from seaice_jax.adjust.orbit_fit import fit_scan_model
+    from seaice_jax.geometry.earth import SIDEREAL_DAY
+    from seaice_jax.geometry.scan import satellite_orbit
+    from seaice_jax.io.files import write_json
+    from seaice_jax.io.stations import control_points, read_agrid, read_measurements
+    from seaice_jax.reports import orbit_fit_json, orbit_fit_report
+
+    catalogue = read_agrid(args.stations) if args.stations else None
+    measurements = read_measurements(args.measurements, catalogue)
+    control = control_points(measurements, args.sigma)
+    check = None
+    if args.check:
+        check = control_points(read_measurements(args.check, catalogue), args.sigma)
+    orbit = satellite_orbit(
+        args.satellite,
+        altitude=None if args.altitude is None else args.altitude * 1000.0,
+        earth_day=SIDEREAL_DAY if args.earth_day is None else args.earth_day * 60.0,
+        period=None if args.period is None else args.period * 60.0,
+        max_latitude=None if args.max_latitude is None else np.radians(args.max_latitude),
+    )
+    fit = fit_scan_model(control, orbit, direction=args.direction, n_pixels=args.pixels, n_scans=args.scans,
+                         method=args.method)
+    print(orbit_fit_report(fit, check, names={m.id: m.name for m in measurements}))
+    if args.json:
+        write_json(args.json, orbit_fit_json(fit, check))
+        print(f"wrote {args.json}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seaice", description="Sea-ice mapping and drift from radar strips and "
                                      "satellite images (seaice_jax).")
@@ -22,6 +54,29 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="run the main job on the built-in scenario")
     demo.add_argument("--out", default="seaice-demo", help="output folder (default: ./seaice-demo)")
     demo.set_defaults(run=_demo)
+
+    rectify = commands.add_parser(
+        "rectify", help="fit a satellite image's orbit and scan parameters to ground control points (VHR2)",
+        description="Fit the great-circle scan model (source 001, section 3.3) to control points and print a "
+                    "report in the layout of the 1985 line printer (Figure 3-3), with covariance and w-tests.")
+    rectify.add_argument("measurements", help="CSV: id,name,pixel,scan,lat,lon (degrees) [,sigma_km], or "
+                                              "id,pixel,scan with --stations")
+    rectify.add_argument("--stations", help="AGRID station catalogue to take positions from")
+    rectify.add_argument("--satellite", required=True, help="NOAA-4, NOAA-5, NOAA-6, NOAA-7, TIROS-N, LANDSAT-1..3")
+    rectify.add_argument("--altitude", type=float, help="km; 0 for images corrected for Earth curvature "
+                                                        "(default: the satellite's)")
+    rectify.add_argument("--max-latitude", type=float, help="degrees (overrides the satellite table)")
+    rectify.add_argument("--period", type=float, help="minutes (overrides the satellite table)")
+    rectify.add_argument("--earth-day", type=float, help="minutes of one Earth rotation (default: sidereal day; "
+                                                         "the 1985 program used 1440)")
+    rectify.add_argument("--direction", choices=["south", "north", "auto"], default="auto")
+    rectify.add_argument("--method", choices=["gauss-newton", "appendix_c"], default="gauss-newton")
+    rectify.add_argument("--sigma", type=float, default=1.0, help="km, ground σ of points without sigma_km")
+    rectify.add_argument("--pixels", type=int, default=512, help="pixels per scan line (default 512)")
+    rectify.add_argument("--scans", type=int, default=512, help="scan lines (default 512)")
+    rectify.add_argument("--check", help="CSV of check points: known positions, not used in the fit")
+    rectify.add_argument("--json", help="also write the report as JSON here")
+    rectify.set_defaults(run=_rectify)
     return parser
 
 

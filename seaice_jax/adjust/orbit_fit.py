@@ -224,9 +224,7 @@ class OrbitFit:
     @property
     def error_km(self):
         """Ground distance between computed and known position at each control point, km."""
-        lat, lon = self.computed_positions()
-        return np.asarray(great_circle_distance(lat, lon, self.control.latitude, self.control.longitude,
-                                                self.model.orbit.radius)) / 1000.0
+        return check_point_errors(self.model, self.control)
 
     @property
     def rms_km(self):
@@ -299,6 +297,15 @@ def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_option
     if not bool(adjustment.converged):
         raise SeaiceError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} steps")
     return OrbitFit(adjustment.parameters, control, method, int(adjustment.steps), adjustment)
+
+
+def check_point_errors(model: ScanModel, check: ControlPoints):
+    """Ground distance (km) between the model's positions of check points and their known positions.
+
+    Check points have known positions but take no part in the fit (independent accuracy).
+    """
+    lat, lon = model.forward(check.pixel, check.scan)
+    return np.asarray(great_circle_distance(lat, lon, check.latitude, check.longitude, model.orbit.radius)) / 1000.0
 
 
 def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):

@@ -3,6 +3,7 @@ leaves a partial file that looks complete."""
 
 import contextlib
 import csv
+import json
 import os
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
@@ -46,4 +47,11 @@ def write_csv(path: str | os.PathLike, columns: Mapping[str, Sequence], float_fo
         writer.writerow(names)
         for row in zip(*values, strict=True):
             writer.writerow([cell(x) for x in row])
+    return Path(path)
+
+
+def write_json(path: str | os.PathLike, data) -> Path:
+    """Write ``data`` as indented JSON, atomically."""
+    with atomic_path(path) as temporary:
+        temporary.write_text(json.dumps(data, indent=2) + "\n")
     return Path(path)

@@ -1,0 +1,134 @@
+"""Text and JSON reports of results (presentation only: the numbers come from the adjust layer)."""
+
+import numpy as np
+
+from seaice_jax.adjust.orbit_fit import FREE_PARAMETERS, OrbitFit, check_point_errors
+from seaice_jax.adjust.quality import global_test
+
+_DEG = 180.0 / np.pi
+
+
+def _degrees_minutes(value_deg: float) -> str:
+    sign = "-" if value_deg < 0 else ""
+    minutes = round(abs(value_deg) * 60.0, 2)
+    degrees, minutes = divmod(minutes, 60.0)
+    return f"{sign}{int(degrees)} {minutes:05.2f}"
+
+
+def _parameters(fit: OrbitFit) -> dict:
+    model = fit.model
+    return {
+        "scanner_angle_first_deg": float(model.scanner_angle_first) * _DEG,
+        "scanner_angle_last_deg": float(model.scanner_angle_last) * _DEG,
+        "orbital_angle_first_deg": float(model.orbital_angle_first) * _DEG,
+        "orbital_angle_last_deg": float(model.orbital_angle_last) * _DEG,
+        "subtrack_pixel": float(model.subtrack_pixel),
+        "ascending_node_deg": float(model.ascending_node) * _DEG,
+        "direction": model.direction,
+    }
+
+
+def _parameter_sigma(fit: OrbitFit) -> dict:
+    if fit.adjustment is None:
+        return {}
+    sigma = fit.adjustment.standard_deviations(a_priori=True)
+    units = {"subtrack_pixel": ("subtrack_pixel", 1.0)}
+    return {units.get(name, (f"{name}_deg", _DEG))[0]: float(sigma[name]) * units.get(name, (None, _DEG))[1]
+            for name in FREE_PARAMETERS}
+
+
+def orbit_fit_json(fit: OrbitFit, check=None) -> dict:
+    """The orbit-fit report as JSON-ready data (keys of the ``seaice rectify --json`` output)."""
+    dlat, dlon = fit.dlat_arcmin, fit.dlon_arcmin
+    flag_1985, flag_w = fit.flagged_1985, fit.flagged_w_test()
+    dev_lat, dev_lon = fit.dev_arcmin
+    adjustment = fit.adjustment
+    result = {
+        "parameters": _parameters(fit),
+        "parameter_sigma": _parameter_sigma(fit),
+        "method": fit.method,
+        "iterations": fit.iterations,
+        "alternatives_rms_km": fit.alternatives,
+        "dev_lat_arcmin": dev_lat,
+        "dev_lon_arcmin": dev_lon,
+        "rms_km": fit.rms_km,
+        "sigma0": None if adjustment is None or adjustment.degrees_of_freedom == 0 else float(adjustment.sigma0),
+        "degrees_of_freedom": None if adjustment is None else adjustment.degrees_of_freedom,
+        "stations": [
+            {"id": point_id, "dlat_arcmin": float(a), "dlon_arcmin": float(b), "error_km": float(e),
+             "flagged": bool(f1 or f2), "flagged_1985": bool(f1), "flagged_w_test": bool(f2)}
+            for point_id, a, b, e, f1, f2 in zip(fit.control.ids, dlat, dlon, fit.error_km, flag_1985, flag_w,
+                                                 strict=True)
+        ],
+    }
+    if check is not None:
+        errors = check_point_errors(fit.model, check)
+        result["check_rmse_km"] = float(np.sqrt(np.mean(errors**2)))
+        result["check"] = [{"id": i, "error_km": float(e)} for i, e in zip(check.ids, errors, strict=True)]
+    return result
+
+
+def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
+    """The orbit-fit report in the layout of the 1985 line-printer output (source 001, Figure 3-3).
+
+    Adds what the 1985 program could not give: parameter standard deviations, σ̂0 and the global test, w-tests
+    with data-snooping flags, RMS ground distance, and check points reported separately.
+    """
+    data = orbit_fit_json(fit, check)
+    p, model, orbit = data["parameters"], fit.model, fit.model.orbit
+    names = names or {}
+    direction = "SOUTHWARD" if model.direction == "south" else "NORTHWARD"
+    lines = []
+    if len(fit.alternatives) > 1:
+        others = ", ".join(f"{d.upper()}WARD {rms:.3f} KM" for d, rms in fit.alternatives.items())
+        lines.append(f"DIRECTION OF ORBIT CHOSEN AS {direction} (RMS {others})")
+    else:
+        lines.append(f"DIRECTION OF ORBIT ASSUMED TO BE {direction}")
+    lines += [
+        "",
+        f" ORBITAL ANGLE    {p['orbital_angle_first_deg']:7.2f} TO {p['orbital_angle_last_deg']:7.2f}  ANGLE = "
+        f"{abs(p['orbital_angle_last_deg'] - p['orbital_angle_first_deg']):.4f}",
+        f" SCAN LINE        {1:7d} TO {model.n_scans:7d}",
+        f" SCAN OFFSET      {p['scanner_angle_first_deg']:7.2f} TO {p['scanner_angle_last_deg']:7.2f}  OFFSET = "
+        f"{p['scanner_angle_first_deg'] - p['scanner_angle_last_deg']:.4f}",
+        f" PIXEL            {1:7d} TO {model.n_pixels:7d}",
+        f" SUBTRACK PIXEL   {p['subtrack_pixel']:7.2f}",
+        f" ASCENDING NODE   {p['ascending_node_deg']:7.2f}",
+        f" ALTITUDE         {float(orbit.altitude) / 1000.0:7.2f}",
+        f" ORBITAL PERIOD   {float(orbit.period) / 60.0:7.2f}",
+        f" ORB MAX LATITUDE {float(orbit.max_latitude) * _DEG:7.2f}",
+        "",
+        f"{'REFERENCE STATION':<28}{'PIXEL':>7}{'SCAN':>7}{'LAT':>10}{'LONG':>11}{'DLAT':>9}{'DLONG':>9}"
+        f"{'W-LAT':>7}{'W-LON':>7}  FLAG",
+    ]
+    w_lat, w_lon = fit.w_statistics()
+    for k, station in enumerate(data["stations"]):
+        label = f"{station['id']:<6}{names.get(station['id'], '')[:21]:<22}"
+        flag = "*" if station["flagged_1985"] else ""
+        flag += "W" if station["flagged_w_test"] else ""
+        lines.append(
+            f"{label}{float(fit.control.pixel[k]):7.0f}{float(fit.control.scan[k]):7.0f}"
+            f"{_degrees_minutes(float(fit.control.latitude[k]) * _DEG):>10}"
+            f"{_degrees_minutes(float(fit.control.longitude[k]) * _DEG):>11}"
+            f"{station['dlat_arcmin']:9.4f}{station['dlon_arcmin']:9.4f}{w_lat[k]:7.2f}{w_lon[k]:7.2f}  {flag}")
+    lines.append(f"{'DEV':>63}{data['dev_lat_arcmin']:9.4f}{data['dev_lon_arcmin']:9.4f}")
+    lines += ["", f"RMS GROUND DISTANCE AT THE STATIONS {data['rms_km']:.3f} KM"]
+    if fit.adjustment is not None:
+        dof = fit.adjustment.degrees_of_freedom
+        if dof > 0:
+            _, p_value, accepted = global_test(fit.adjustment.sigma0**2, dof)
+            verdict = "ACCEPTED" if bool(accepted) else "REJECTED: the control points disagree beyond their sigma"
+            lines.append(f"SIGMA0 {data['sigma0']:.3f} WITH {dof} DEGREES OF FREEDOM, GLOBAL TEST p = "
+                         f"{float(p_value):.3f} {verdict}")
+        else:
+            lines.append("NO REDUNDANCY (as many unknowns as observations): SIGMA0 AND TESTS UNAVAILABLE")
+        sigma = data["parameter_sigma"]
+        lines.append("STANDARD DEVIATIONS (A PRIORI): " + ", ".join(
+            f"{k.removesuffix('_deg')} {v:.4g}{'°' if k.endswith('_deg') else ' px'}" for k, v in sigma.items()))
+    lines.append(f"METHOD {fit.method}, {fit.iterations} "
+                 f"{'ITERATIONS' if fit.method == 'gauss-newton' else 'POSITION EVALUATIONS'}")
+    lines.append("FLAGS: * beyond 3 arc minutes (the 1985 rule), W rejected by the w-test (alpha 0.001)")
+    if check is not None:
+        lines += ["", f"CHECK POINTS (not used in the fit): RMSE {data['check_rmse_km']:.3f} KM"]
+        lines += [f"  {c['id']:<8}{c['error_km']:8.3f} KM" for c in data["check"]]
+    return "\n".join(lines)

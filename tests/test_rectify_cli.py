@@ -1,0 +1,92 @@
+import json
+
+import numpy as np
+import pytest
+
+from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.cli import main
+from seaice_jax.reports import orbit_fit_json, orbit_fit_report
+from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
+
+FIGURE_3_3_CSV = """id,name,pixel,scan,lat,lon
+3030,COB IS ICE,164,123,75.716667,-78.616667
+3031,N DEV PT,114,172,75.85,-81.916667
+3032,KKOD,165,400,73.783333,-84.833333
+3034,BYLOT E,348,281,72.983333,-75.7
+3035,E DEV,199,204,74.866667,-79.233333
+"""
+
+
+def write_points(path, control, names=None):
+    lines = ["id,pixel,scan,lat,lon"]
+    for k, point in enumerate(control.ids):
+        lines.append(f"{point},{float(control.pixel[k]):.4f},{float(control.scan[k]):.4f},"
+                     f"{np.degrees(float(control.latitude[k])):.8f},{np.degrees(float(control.longitude[k])):.8f}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_rectify_figure_3_3_prints_the_1985_layout_and_writes_json(tmp_path, capsys):
+    measurements = tmp_path / "fig33.csv"
+    measurements.write_text(FIGURE_3_3_CSV)
+    out = tmp_path / "fit.json"
+    code = main(["rectify", str(measurements), "--satellite", "NOAA-7", "--altitude", "0", "--earth-day", "1440",
+                 "--json", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "DIRECTION OF ORBIT CHOSEN AS SOUTHWARD" in text and "SUBTRACK PIXEL" in text and "DEV" in text
+    assert "COB IS ICE" in text
+    data = json.loads(out.read_text())
+    parameters = data["parameters"]
+    assert set(parameters) == {"scanner_angle_first_deg", "scanner_angle_last_deg", "orbital_angle_first_deg",
+                               "orbital_angle_last_deg", "subtrack_pixel", "ascending_node_deg", "direction"}
+    assert parameters["direction"] == "south"
+    assert abs(parameters["subtrack_pixel"] - 112) <= 5
+    assert abs(parameters["ascending_node_deg"] - 66.65) <= 0.5
+    assert data["rms_km"] <= 1.25
+    assert [s["id"] for s in data["stations"]] == ["3030", "3031", "3032", "3034", "3035"]
+    assert all(set(s) >= {"id", "dlat_arcmin", "dlon_arcmin", "flagged"} for s in data["stations"])
+    assert data["dev_lat_arcmin"] == pytest.approx(np.std([s["dlat_arcmin"] for s in data["stations"]], ddof=1))
+    assert data["sigma0"] > 0
+
+
+def test_rectify_with_check_points_reports_them_separately(tmp_path, capsys):
+    truth = noaa_image("south", altitude=0.0)
+    rng = np.random.default_rng(8)
+    control, _, _ = simulate_control_points(truth, 7, rng, 800.0)
+    check, _, _ = simulate_control_points(truth, 4, rng, 800.0)
+    out = tmp_path / "fit.json"
+    code = main(["rectify", str(write_points(tmp_path / "gcp.csv", control)), "--satellite", "NOAA-7",
+                 "--altitude", "0", "--sigma", "0.8", "--check", str(write_points(tmp_path / "chk.csv", check)),
+                 "--json", str(out)])
+    assert code == 0
+    assert "CHECK POINTS (not used in the fit)" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert [c["id"] for c in data["check"]] == list(check.ids)
+    errors = np.array([c["error_km"] for c in data["check"]])
+    assert data["check_rmse_km"] == pytest.approx(np.sqrt(np.mean(errors**2)))
+    assert 0.0 < data["check_rmse_km"] < 3.0  # check points carry their own 0.8 km noise
+
+
+def test_rectify_errors_name_the_file_and_write_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,pixel,scan,lat,lon\nA,1,2,70,0\nB,x,2,70,0\n")
+    out = tmp_path / "fit.json"
+    assert main(["rectify", str(bad), "--satellite", "NOAA-7", "--json", str(out)]) == 2
+    assert "bad.csv, line 3: column 'pixel' value 'x' is not a number" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["rectify", str(bad), "--satellite", "NOAA-99"]) == 2
+    too_few = tmp_path / "two.csv"
+    too_few.write_text("id,pixel,scan,lat,lon\nA,10,20,75,-80\nB,300,400,73,-78\n")
+    assert main(["rectify", str(too_few), "--satellite", "NOAA-7", "--altitude", "0", "--direction", "south"]) == 2
+    assert "cannot determine" in capsys.readouterr().err
+
+
+def test_report_for_appendix_c_has_no_invented_statistics():
+    truth = noaa_image("south")
+    control, _, _ = simulate_control_points(truth, 6, np.random.default_rng(2), 500.0)
+    fit = fit_scan_model(control, truth.orbit, direction="south", method="appendix_c",
+                         search_options={"initial_spans": (5.0, 5.0), "start_subtrack": 128, "search_span": 256})
+    data = orbit_fit_json(fit)
+    assert data["sigma0"] is None and data["parameter_sigma"] == {}
+    assert "POSITION EVALUATIONS" in orbit_fit_report(fit)
