@@ -323,7 +323,12 @@ def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):
     if fit.adjustment is None:
         raise SeaiceError("position uncertainty needs a Gauss-Newton fit (Appendix C gives no covariance)")
     covariance = fit.adjustment.cofactor if a_priori else fit.adjustment.covariance
-    model = fit.model
+    return propagate_position_sigma(fit.model, covariance, pixel, scan)
+
+
+def propagate_position_sigma(model: ScanModel, covariance, pixel, scan):
+    """σ (north, east) in metres of image points from a ``(5, 5)`` covariance of the five unknowns (in the order
+    of :data:`FREE_PARAMETERS`), by the autodiff Jacobian of the forward model."""
     radius = model.orbit.radius
 
     def position(values, p, s):
@@ -336,6 +341,6 @@ def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):
     values = jnp.stack([getattr(model, n) for n in FREE_PARAMETERS])
     pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
     jac = jax.vmap(jax.jacfwd(position), in_axes=(None, 0, 0))(values, pixel.reshape(-1), scan.reshape(-1))
-    variance = jnp.einsum("nij,jk,nik->ni", jac, covariance, jac)
+    variance = jnp.einsum("nij,jk,nik->ni", jac, jnp.asarray(covariance), jac)
     sigma = jnp.sqrt(variance)
     return sigma[:, 0].reshape(pixel.shape), sigma[:, 1].reshape(pixel.shape)

@@ -1,8 +1,10 @@
 """Simulated satellite images with known truth (grows into full image sequences)."""
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax.adjust.multi_image import ImageObservations
 from seaice_jax.adjust.orbit_fit import ControlPoints
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.scan import ScanModel, satellite_orbit
@@ -45,3 +47,28 @@ def perturb_known_positions(latitude, longitude, sigma_m, rng, runs, radius=MEAN
     latitude, longitude = np.asarray(latitude), np.asarray(longitude)
     noise = rng.normal(0.0, 1.0, (2, runs, latitude.size)) * np.asarray(sigma_m)
     return latitude + noise[0] / radius, longitude + noise[1] / (radius * np.cos(latitude))
+
+
+def overlapping_pair(rng: np.random.Generator, primary_first: int = 6, primary_second: int = 1,
+                     secondary: int = 6, sigma_m: float = 500.0, pointing_m: float = 300.0):
+    """Two overlapping southbound NOAA-7 images (the second's node 2° east, 0.8° earlier in the orbit).
+
+    The first has ``primary_first`` control points, the second only ``primary_second`` (too few on its own);
+    ``secondary`` points inside the overlap are measured on both. Known positions carry N(0, σ) noise; pointing
+    at the secondary points is exact (add noise to the adjustment's observations to simulate it).
+
+    Returns:
+        ``(images, truths)``: two :class:`ImageObservations` and the two true :class:`ScanModel`.
+    """
+    first = noaa_image("south")
+    second = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), first,
+                         replace=(first.ascending_node + 2.0 * _DEG, first.orbital_angle_first - 0.8 * _DEG))
+    primary_a, _, _ = simulate_control_points(first, primary_first, rng, sigma_m)
+    primary_b, _, _ = simulate_control_points(second, primary_second, rng, sigma_m)
+    pixel = rng.uniform(150.0, 400.0, secondary)
+    scan = rng.uniform(150.0, 400.0, secondary)
+    pixel_b, scan_b = (np.asarray(a) for a in second.inverse(*first.forward(pixel, scan)))
+    ids = tuple(f"S{k + 1}" for k in range(secondary))
+    images = [ImageObservations("A", first.orbit, "south", primary_a, ids, pixel, scan, pointing_m),
+              ImageObservations("B", second.orbit, "south", primary_b, ids, pixel_b, scan_b, pointing_m)]
+    return images, (first, second)

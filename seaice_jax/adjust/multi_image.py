@@ -1,0 +1,178 @@
+"""Several satellite images adjusted at once (source 001, section 3.3, "multiple image rectification").
+
+Images share *secondary* control points — features seen on two or more images whose ground position is unknown —
+and have *primary* control points with known positions. The 1985 program solved one image, then used the
+secondary points' positions from that solution as fixed controls for the next (:func:`sequential_fit`). The
+rigorous alternative estimates all images' five unknowns and all secondary points' positions in one weighted
+least-squares adjustment (:func:`joint_fit`), so the uncertainty of the first image is carried into the others.
+"""
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares
+from seaice_jax.adjust.orbit_fit import ControlPoints, OrbitFit, fit_scan_model, free_mask
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.scan import Orbit, ScanModel
+
+
+@dataclass(frozen=True)
+class ImageObservations:
+    """What was measured on one image.
+
+    Attributes:
+        name: the image's name (used in messages and parameter names).
+        orbit, direction, n_pixels, n_scans: the image's fixed orbit, pass direction and size.
+        primary: control points with known positions (may be ``None``).
+        secondary_ids: ids of the secondary points measured on this image.
+        secondary_pixel, secondary_scan: ``(k,)`` their image coordinates.
+        secondary_sigma: metres, ground σ of pointing a secondary point on this image.
+    """
+
+    name: str
+    orbit: Orbit
+    direction: str
+    primary: ControlPoints | None
+    secondary_ids: tuple[str, ...]
+    secondary_pixel: np.ndarray
+    secondary_scan: np.ndarray
+    secondary_sigma: float = 1000.0
+    n_pixels: int = 512
+    n_scans: int = 512
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """All images and secondary points from one adjustment.
+
+    Attributes:
+        models: the fitted scan model of each image.
+        point_ids: ids of the secondary points, in the order of ``point_latitude``/``point_longitude``.
+        point_latitude, point_longitude: ``(k,)`` radians.
+        adjustment: the engine's result (covariance of everything, residuals, w-tests).
+    """
+
+    models: tuple[ScanModel, ...]
+    point_ids: tuple[str, ...]
+    point_latitude: np.ndarray
+    point_longitude: np.ndarray
+    adjustment: Adjustment
+
+
+def _wrap(angle):
+    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+
+
+def _secondary_as_control(image: ImageObservations, positions: dict) -> ControlPoints | None:
+    """The image's secondary points with known (previously solved) positions, as control points."""
+    keep = [k for k, i in enumerate(image.secondary_ids) if i in positions]
+    if not keep:
+        return None
+    return ControlPoints(np.asarray(image.secondary_pixel)[keep], np.asarray(image.secondary_scan)[keep],
+                         [positions[image.secondary_ids[k]][0] for k in keep],
+                         [positions[image.secondary_ids[k]][1] for k in keep],
+                         image.secondary_sigma, [f"{image.secondary_ids[k]}" for k in keep])
+
+
+def _merge(a: ControlPoints | None, b: ControlPoints | None) -> ControlPoints | None:
+    if a is None or b is None:
+        return a if b is None else b
+    return ControlPoints(np.concatenate([a.pixel, b.pixel]), np.concatenate([a.scan, b.scan]),
+                         np.concatenate([a.latitude, b.latitude]), np.concatenate([a.longitude, b.longitude]),
+                         np.concatenate([a.sigma, b.sigma]), a.ids + tuple(f"secondary {i}" for i in b.ids))
+
+
+def sequential_fit(images: list[ImageObservations]):
+    """The 1985 practice: solve images one after another, each solved image's secondary points becoming fixed
+    controls of the next.
+
+    Returns:
+        ``(fits, positions)``: an :class:`OrbitFit` per image and ``{secondary id: (latitude, longitude)}`` from
+        the first image that solved it.
+
+    Raises:
+        SeaiceError: naming the images that never get three control points.
+    """
+    fits, positions = {}, {}
+    while len(fits) < len(images):
+        progress = False
+        for j, image in enumerate(images):
+            if j in fits:
+                continue
+            control = _merge(image.primary, _secondary_as_control(image, positions))
+            if control is None or len(control) < 3:
+                continue
+            fits[j] = fit_scan_model(control, image.orbit, direction=image.direction, n_pixels=image.n_pixels,
+                                     n_scans=image.n_scans)
+            lat, lon = fits[j].model.forward(jnp.asarray(image.secondary_pixel), jnp.asarray(image.secondary_scan))
+            for k, point in enumerate(image.secondary_ids):
+                positions.setdefault(point, (float(lat[k]), float(lon[k])))
+            progress = True
+        if not progress:
+            stuck = [images[j].name for j in range(len(images)) if j not in fits]
+            raise SeaiceError(f"images {', '.join(stuck)} never reach three control points (primary, or secondary "
+                              "points seen on an already solved image)")
+    return [fits[j] for j in range(len(images))], positions
+
+
+def joint_problem(images: list[ImageObservations], models, positions):
+    """The joint adjustment's ``(model, parameters, observations, free, args)`` for :mod:`seaice_jax.adjust.lsq`.
+
+    Parameters: ``{"images": (ScanModel, ...), "points": (k, 2) latitude/longitude}``. Observation groups per
+    image ``j``: ``"j:primary latitude"``/``"j:primary longitude"`` (known positions) and
+    ``"j:secondary north"``/``"j:secondary east"`` (image position minus point position, observed as zero).
+    """
+    point_ids = tuple(sorted(positions))
+    index = {p: k for k, p in enumerate(point_ids)}
+    points = jnp.asarray([positions[p] for p in point_ids], float)
+    radius = float(images[0].orbit.radius)
+    observations, layout = {}, []
+    for j, image in enumerate(images):
+        primary = image.primary
+        if primary is not None:
+            observations[f"{j}:primary latitude"] = Observations(primary.latitude, primary.sigma / radius)
+            observations[f"{j}:primary longitude"] = Observations(
+                primary.longitude, primary.sigma / (radius * jnp.cos(primary.latitude)))
+        k = len(image.secondary_ids)
+        if k:
+            zeros = jnp.zeros(k)
+            observations[f"{j}:secondary north"] = Observations(zeros, image.secondary_sigma / radius)
+            observations[f"{j}:secondary east"] = Observations(zeros, image.secondary_sigma / radius)
+        layout.append((primary, jnp.asarray([index[p] for p in image.secondary_ids], int),
+                       jnp.asarray(image.secondary_pixel, float), jnp.asarray(image.secondary_scan, float)))
+
+    def model(parameters, _):
+        predicted = {}
+        for j, (primary, point_index, pixel, scan) in enumerate(layout):
+            image_model = parameters["images"][j]
+            if primary is not None:
+                lat, lon = image_model.forward(primary.pixel, primary.scan)
+                predicted[f"{j}:primary latitude"] = lat
+                reference = jnp.mean(primary.longitude)
+                predicted[f"{j}:primary longitude"] = reference + _wrap(lon - reference)
+            if point_index.size:
+                lat, lon = image_model.forward(pixel, scan)
+                point = parameters["points"][point_index]
+                predicted[f"{j}:secondary north"] = lat - point[:, 0]
+                predicted[f"{j}:secondary east"] = jnp.cos(point[:, 0]) * _wrap(lon - point[:, 1])
+        return predicted
+
+    parameters = {"images": tuple(models), "points": points}
+    free = {"images": tuple(free_mask(m) for m in models), "points": True}
+    return model, parameters, observations, free, point_ids
+
+
+def joint_fit(images: list[ImageObservations]) -> JointFit:
+    """All images' unknowns and all secondary points in one adjustment, started from :func:`sequential_fit`."""
+    fits, positions = sequential_fit(images)
+    model, parameters, observations, free, point_ids = joint_problem(images, [f.model for f in fits], positions)
+    adjustment = least_squares(model, parameters, observations, free=free)
+    points = np.asarray(adjustment.parameters["points"])
+    return JointFit(tuple(adjustment.parameters["images"]), point_ids, points[:, 0], points[:, 1], adjustment)
+
+
+def image_fit(joint: JointFit, images: list[ImageObservations], j: int) -> OrbitFit:
+    """Image ``j`` of a joint fit as an :class:`OrbitFit` on its primary points (for reports)."""
+    return OrbitFit(joint.models[j], images[j].primary, "gauss-newton (joint)", int(joint.adjustment.steps))
