@@ -97,3 +97,30 @@ def plot_maps(path: str | os.PathLike, panels: Sequence[MapPanel], title: str) -
         fig.savefig(temporary, format="png", dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, label: str, points=None) -> Path:
+    """A field over an image's pixel/scan grid (e.g. position σ) as a filled contour map, scan lines downward.
+
+    Args:
+        pixel, scan, values: ``(n_scan, n_pixel)`` grids.
+        points: optional ``(pixel, scan, names)`` to mark (control points).
+    """
+    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    filled = ax.contourf(pixel, scan, values, levels=15, cmap="viridis")
+    fig.colorbar(filled, ax=ax, label=label)
+    if points is not None:
+        px, sc, names = points
+        ax.scatter(px, sc, color="white", edgecolor="black", s=30, zorder=3, label="control points")
+        for name, x, y in zip(names, px, sc, strict=False):
+            ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color="white")
+        ax.legend(loc="lower right", fontsize=7)
+    ax.set_xlabel("pixel")
+    ax.set_ylabel("scan line")
+    ax.invert_yaxis()
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    with atomic_path(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=110)
+    plt.close(fig)
+    return Path(path)
