@@ -99,16 +99,22 @@ class Solver:
     """
 
     def __init__(self, solve, whitened, flatten, parameter_names, degrees_of_freedom, start):
-        self._solve, self._whitened, self.flatten = solve, whitened, flatten
+        # compiled once per solver: eager dispatch of the solve and its Jacobians costs seconds
+        self._solve, self._whitened, self.flatten = jax.jit(solve), whitened, flatten
+        self._jacobian = jax.jit(jax.jacfwd(whitened))
         self.parameter_names, self.degrees_of_freedom, self.start = parameter_names, degrees_of_freedom, start
 
     def __call__(self, observed, args=None, start=None) -> "Adjustment":
         """Adjust to ``observed`` (``{group: values}``), from ``start`` (a parameter pytree) or the initial values."""
         return self._solve(observed, args, start)
 
+    def residuals(self, x, observed, args=None):
+        """``(m,)`` whitened residuals (computed − observed)/σ, priors last, at the free-unknown vector ``x``."""
+        return self._whitened(x, ({g: jnp.asarray(v, float) for g, v in observed.items()}, args))
+
     def jacobian_at(self, x, observed, args=None):
         """``(m, u)`` Jacobian of the whitened residuals at the free-unknown vector ``x``."""
-        return jax.jacfwd(self._whitened)(x, ({g: jnp.asarray(v, float) for g, v in observed.items()}, args))
+        return self._jacobian(x, ({g: jnp.asarray(v, float) for g, v in observed.items()}, args))
 
 
 def make_solver(

@@ -9,11 +9,20 @@ least-squares adjustment (:func:`joint_fit`), so the uncertainty of the first im
 
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares
-from seaice_jax.adjust.orbit_fit import ControlPoints, OrbitFit, fit_scan_model, free_mask
+from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares, make_solver
+from seaice_jax.adjust.orbit_fit import (
+    FREE_PARAMETERS,
+    ControlPoints,
+    OrbitFit,
+    fit_scan_model,
+    free_mask,
+    orbit_solver,
+    propagate_position_sigma,
+)
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.scan import Orbit, ScanModel
 
@@ -176,3 +185,78 @@ def joint_fit(images: list[ImageObservations]) -> JointFit:
 def image_fit(joint: JointFit, images: list[ImageObservations], j: int) -> OrbitFit:
     """Image ``j`` of a joint fit as an :class:`OrbitFit` on its primary points (for reports)."""
     return OrbitFit(joint.models[j], images[j].primary, "gauss-newton (joint)", int(joint.adjustment.steps))
+
+
+@dataclass(frozen=True)
+class MonteCarloComparison:
+    """Joint adjustment against the 1985 sequential practice for the second image (Monte Carlo, same noise).
+
+    All arrays are ``(points,)`` over the evaluation grid, metres (horizontal position).
+
+    Attributes:
+        joint_predicted: σ from the joint adjustment's covariance.
+        joint_scatter: RMS error of the joint estimates over the realizations.
+        sequential_claimed: σ the sequential fit of the second image reports (secondary points taken as exact).
+        sequential_scatter: RMS error of the sequential estimates.
+        runs: number of realizations.
+    """
+
+    joint_predicted: np.ndarray
+    joint_scatter: np.ndarray
+    sequential_claimed: np.ndarray
+    sequential_scatter: np.ndarray
+    runs: int
+
+
+def monte_carlo_comparison(images, truths, runs, rng, pixel, scan) -> MonteCarloComparison:
+    """Vmapped Monte Carlo of :func:`joint_fit` and :func:`sequential_fit` for a pair of images (first solved
+    first), with noise on the known positions (their σ) and on the pointing at secondary points (their σ).
+
+    Both adjustments are linearised at the truth (``truths``) and solved by Gauss-Newton per realization.
+    ``pixel``, ``scan``: ``(n,)`` evaluation points on the second image.
+    """
+    first, second = images
+    radius = float(first.orbit.radius)
+    lat0, lon0 = truths[0].forward(jnp.asarray(first.secondary_pixel), jnp.asarray(first.secondary_scan))
+    positions = {p: (float(a), float(b)) for p, a, b in zip(first.secondary_ids, lat0, lon0, strict=True)}
+    model, parameters, observations, free, _ = joint_problem(images, list(truths), positions)
+    solver = make_solver(model, parameters, observations, free=free)
+    noise = {g: rng.normal(0.0, 1.0, (runs,) + o.values.shape) * np.asarray(o.sigma)
+             for g, o in observations.items()}
+    observed = {g: np.asarray(o.values)[None] + noise[g] for g, o in observations.items()}
+    joint = jax.jit(jax.vmap(lambda obs: solver(obs)))(observed)
+    block = [solver.parameter_names.index(f"images[1].{n}") for n in FREE_PARAMETERS]
+    cofactor = np.asarray(joint.cofactor[0])[np.ix_(block, block)]
+    joint_predicted = np.hypot(*(np.asarray(a) for a in propagate_position_sigma(truths[1], cofactor, pixel, scan)))
+    truth_lat, truth_lon = (np.asarray(a) for a in truths[1].forward(pixel, scan))
+
+    def scatter(models):
+        lat, lon = jax.vmap(lambda m: m.forward(pixel, scan))(models)
+        north = (np.asarray(lat) - truth_lat) * radius
+        east = np.angle(np.exp(1j * (np.asarray(lon) - truth_lon))) * radius * np.cos(truth_lat)
+        return np.sqrt(np.mean(north**2 + east**2, axis=0))
+
+    # 1985: the first image from its primaries; the secondary points' positions from it (with its pointing
+    # noise) become fixed controls of the second (with the second's pointing noise on top)
+    solve_a = orbit_solver(first.primary, truths[0])
+    args_a = (first.primary.pixel, first.primary.scan, jnp.mean(first.primary.longitude))
+    fit_a = jax.jit(jax.vmap(lambda la, lo: solve_a({"latitude": la, "longitude": lo}, args_a)))(
+        jnp.asarray(observed["0:primary latitude"]), jnp.asarray(observed["0:primary longitude"]))
+    sec_lat, sec_lon = jax.vmap(lambda m: m.forward(first.secondary_pixel, first.secondary_scan))(fit_a.parameters)
+    sec_lat = np.asarray(sec_lat) - noise["0:secondary north"] + noise["1:secondary north"]
+    sec_lon = np.asarray(sec_lon) - (noise["0:secondary east"] - noise["1:secondary east"]) / np.cos(sec_lat)
+    k = len(second.secondary_ids)
+    control = ControlPoints(np.concatenate([second.primary.pixel, second.secondary_pixel]),
+                            np.concatenate([second.primary.scan, second.secondary_scan]),
+                            np.concatenate([second.primary.latitude, sec_lat[0]]),
+                            np.concatenate([second.primary.longitude, sec_lon[0]]),
+                            np.concatenate([np.asarray(second.primary.sigma), np.full(k, second.secondary_sigma)]))
+    solve_b = orbit_solver(control, truths[1])
+    args_b = (control.pixel, control.scan, jnp.mean(control.longitude))
+    fit_b = jax.jit(jax.vmap(lambda la, lo: solve_b({"latitude": la, "longitude": lo}, args_b)))(
+        jnp.asarray(np.concatenate([observed["1:primary latitude"], sec_lat], 1)),
+        jnp.asarray(np.concatenate([observed["1:primary longitude"], sec_lon], 1)))
+    claimed = np.hypot(*(np.asarray(a) for a in propagate_position_sigma(
+        truths[1], np.asarray(fit_b.cofactor[0]), pixel, scan)))
+    return MonteCarloComparison(joint_predicted, scatter(joint.parameters["images"][1]), claimed,
+                                scatter(fit_b.parameters), runs)

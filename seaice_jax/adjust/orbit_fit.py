@@ -130,38 +130,45 @@ def control_args(control: ControlPoints):
     return control.pixel, control.scan, jnp.mean(control.longitude)
 
 
+@jax.jit
+def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight):
+    """For each trial node: the misfit of straight lines η(scan), ψ(pixel) through the control points, and the
+    lines' coefficients (intercept at line/pixel 1, slope). Infinite misfit off the pass's branch."""
+    scan_design = jnp.stack([jnp.ones_like(scan), scan - 1.0], 1) * weight[:, None]
+    pixel_design = jnp.stack([jnp.ones_like(pixel), pixel - 1.0], 1) * weight[:, None]
+
+    def misfit(node):
+        eta, beta = orbit_coordinates(orbit, node, latitude, longitude, branch)
+        psi = orbit.scanner_angle_from_central(beta)
+        eta_line = jnp.linalg.lstsq(scan_design, eta * weight)[0]
+        psi_line = jnp.linalg.lstsq(pixel_design, psi * weight)[0]
+        cost = jnp.sum((scan_design @ eta_line - eta * weight) ** 2) + jnp.sum(
+            (pixel_design @ psi_line - psi * weight) ** 2)
+        on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < jnp.pi / 2)
+        return jnp.where(on_branch, cost, jnp.inf), eta_line, psi_line
+
+    return jax.vmap(misfit)(nodes)
+
+
 def initial_guess(control: ControlPoints, orbit: Orbit, direction: str, n_pixels: int = 512,
                   n_scans: int = 512, node_steps: int = 720) -> ScanModel:
     """Starting values from the control points alone (no operator input).
 
-    For each trial ascending node on a grid of ``node_steps`` (then refined 200-fold around the best), every
+    For each trial ascending node on a grid of ``node_steps`` (then refined around the best on as many), every
     control point's orbital angle η and scanner angle ψ follow in closed form (:func:`orbit_coordinates`); the
     model says η is linear in scan line and ψ linear in pixel, so two weighted straight-line fits give the other
     four unknowns and a misfit. The node with the smallest misfit, among those putting every point on the pass's
     branch (descending for ``"south"``, ascending for ``"north"``), wins.
     """
     branch = jnp.pi if direction == "south" else 0.0
-    weight = 1.0 / (control.sigma / orbit.radius)
-    scan_design = jnp.stack([jnp.ones_like(control.scan), control.scan - 1.0], 1) * weight[:, None]
-    pixel_design = jnp.stack([jnp.ones_like(control.pixel), control.pixel - 1.0], 1) * weight[:, None]
-
-    def misfit(node):
-        eta, beta = orbit_coordinates(orbit, node, control.latitude, control.longitude, branch)
-        psi = orbit.scanner_angle_from_central(beta)
-        eta_line, _, _, _ = jnp.linalg.lstsq(scan_design, eta * weight)
-        psi_line, _, _, _ = jnp.linalg.lstsq(pixel_design, psi * weight)
-        cost = jnp.sum((scan_design @ eta_line - eta * weight) ** 2) + jnp.sum(
-            (pixel_design @ psi_line - psi * weight) ** 2)
-        on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < jnp.pi / 2)
-        return jnp.where(on_branch, cost, jnp.inf), eta_line, psi_line
-
-    search = jax.jit(jax.vmap(misfit))
+    data = (orbit, branch, control.latitude, control.longitude, control.pixel, control.scan,
+            orbit.radius / control.sigma)
     step = 2 * jnp.pi / node_steps
     nodes = jnp.arange(node_steps) * step - jnp.pi
-    costs, _, _ = search(nodes)
+    costs, _, _ = _node_misfits(nodes, *data)
     best = nodes[jnp.argmin(costs)]
-    nodes = best + jnp.linspace(-step, step, 401)
-    costs, eta_lines, psi_lines = search(nodes)
+    nodes = best + jnp.linspace(-step, step, node_steps)  # same shape: no second compilation
+    costs, eta_lines, psi_lines = _node_misfits(nodes, *data)
     k = int(jnp.argmin(costs))
     if not np.isfinite(float(costs[k])):
         raise SeaiceError(f"no {direction}bound pass of this orbit puts all {len(control)} control points on one "
