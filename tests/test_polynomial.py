@@ -70,3 +70,19 @@ def test_trust_region_and_leave_one_out_expose_extrapolation(rng):
     assert shift[~trusted].max() > 10 * shift[trusted].max()
     errors = leave_one_out_errors(x, y, xt, yt, n_terms=3)
     assert errors.shape == (8,) and np.all(errors > 0)
+
+
+def test_affine_touch_up_after_an_orbit_fit_meets_the_control_points(rng):
+    from seaice_jax.adjust.orbit_fit import fit_scan_model
+    from seaice_jax.adjust.polynomial import affine_touch_up
+    from seaice_jax.geometry.earth import great_circle_distance
+    from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
+
+    truth = noaa_image("south")
+    control, _, _ = simulate_control_points(truth, 7, rng, 1000.0)
+    fit = fit_scan_model(control, truth.orbit, direction="south")
+    assert fit.rms_km > 0.3  # the orbit fit alone leaves the noise at the points
+    correction = affine_touch_up(fit)
+    lat, lon = fit.model.forward(*correction(control.pixel, control.scan))
+    distance = np.asarray(great_circle_distance(lat, lon, control.latitude, control.longitude))
+    assert distance.max() < 1.0  # metres

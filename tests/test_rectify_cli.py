@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,13 +9,7 @@ from seaice_jax.cli import main
 from seaice_jax.reports import orbit_fit_json, orbit_fit_report
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 
-FIGURE_3_3_CSV = """id,name,pixel,scan,lat,lon
-3030,COB IS ICE,164,123,75.716667,-78.616667
-3031,N DEV PT,114,172,75.85,-81.916667
-3032,KKOD,165,400,73.783333,-84.833333
-3034,BYLOT E,348,281,72.983333,-75.7
-3035,E DEV,199,204,74.866667,-79.233333
-"""
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def write_points(path, control, names=None):
@@ -27,8 +22,7 @@ def write_points(path, control, names=None):
 
 
 def test_rectify_figure_3_3_prints_the_1985_layout_and_writes_json(tmp_path, capsys):
-    measurements = tmp_path / "fig33.csv"
-    measurements.write_text(FIGURE_3_3_CSV)
+    measurements = EXAMPLES / "figure_3_3.csv"
     out = tmp_path / "fit.json"
     code = main(["rectify", str(measurements), "--satellite", "NOAA-7", "--altitude", "0", "--earth-day", "1440",
                  "--json", str(out)])
@@ -48,6 +42,16 @@ def test_rectify_figure_3_3_prints_the_1985_layout_and_writes_json(tmp_path, cap
     assert all(set(s) >= {"id", "dlat_arcmin", "dlon_arcmin", "flagged"} for s in data["stations"])
     assert data["dev_lat_arcmin"] == pytest.approx(np.std([s["dlat_arcmin"] for s in data["stations"]], ddof=1))
     assert data["sigma0"] > 0
+
+
+def test_rectify_with_the_agrid_catalogue_gives_the_same_fit(tmp_path, capsys):
+    out_direct, out_catalogue = tmp_path / "a.json", tmp_path / "b.json"
+    common = ["--satellite", "NOAA-7", "--altitude", "0", "--earth-day", "1440", "--direction", "south"]
+    assert main(["rectify", str(EXAMPLES / "figure_3_3.csv"), *common, "--json", str(out_direct)]) == 0
+    assert main(["rectify", str(EXAMPLES / "figure_3_3_measured.csv"), "--stations", str(EXAMPLES / "AGRID.STN"),
+                 *common, "--json", str(out_catalogue)]) == 0
+    a, b = (json.loads(p.read_text())["parameters"] for p in (out_direct, out_catalogue))
+    assert a["subtrack_pixel"] == pytest.approx(b["subtrack_pixel"], abs=1e-3)  # coordinates rounded to 1e-6°
 
 
 def test_rectify_with_check_points_reports_them_separately(tmp_path, capsys):

@@ -146,3 +146,19 @@ def _inside_hull(points, query):
     relative = query[:, None, :] - hull[None, :, :]
     cross = edges[None, :, 0] * relative[..., 1] - edges[None, :, 1] * relative[..., 0]
     return np.all(cross >= -1e-9, axis=1)
+
+
+def affine_touch_up(fit, n_terms: int | None = None) -> AffinePolynomial:
+    """The 1985 two-level processing: an AFFINE correction in image space after the orbit fit.
+
+    Maps measured (pixel, scan) to corrected (pixel, scan) so that ``fit.model.forward(*correction(p, s))`` meets
+    the control points' known positions (exactly when ``n_terms`` equals the number of points, the default up to
+    11). Apply it as ``fit.model.forward(*correction(pixel, scan))``; trust it only inside :func:`trust_region`.
+
+    Args:
+        fit: an :class:`~seaice_jax.adjust.orbit_fit.OrbitFit`.
+    """
+    control = fit.control
+    pixel, scan = fit.model.inverse(control.latitude, control.longitude)
+    return fit_affine(np.asarray(control.pixel), np.asarray(control.scan), np.asarray(pixel), np.asarray(scan),
+                      n_terms)
