@@ -36,3 +36,11 @@ def update_results(section: str, body: str):
     else:
         text = text.rstrip("\n") + "\n\n" + header + body
     RESULTS.write_text(text.rstrip("\n") + "\n")
+
+
+def publish(section: str, lines, quick: bool):
+    """Print the section; unless ``quick`` (a smoke run), also write it into RESULTS.md."""
+    body = "\n".join(lines)
+    print(body)
+    if not quick:
+        update_results(section, body)

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import best_time, first_call_time, update_results  # noqa: E402
+from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.geometry.earth import MEAN_RADIUS  # noqa: E402
@@ -154,10 +154,7 @@ def main():
         f"{scipy_inverse_rate:,.0f} points/s ({scipy_points} points).",
         "",
     ]
-    body = "\n".join(lines)
-    print(body)
-    if not args.quick:
-        update_results("Geometry (benchmarks/bench_geometry.py)", body)
+    publish("Geometry (benchmarks/bench_geometry.py)", lines, args.quick)
 
 
 if __name__ == "__main__":

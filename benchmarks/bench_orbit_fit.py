@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import least_squares as scipy_least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import best_time, first_call_time, update_results  # noqa: E402
+from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.adjust.appendix_c import appendix_c_search  # noqa: E402
@@ -111,10 +111,7 @@ def main():
         lines.append(f"| {n:,} | {seconds:.3f} | {seconds / n * 1e3:.3f} | {loop_per_image * 1e3:.2f} | "
                      f"{loop_per_image * n / seconds:.1f}x | {compile_seconds:.2f} |")
     lines += ["", f"The Python loop calls the warm jitted single-image solver {loop_count} times.", ""]
-    body = "\n".join(lines)
-    print(body)
-    if not args.quick:
-        update_results("Orbit fit (benchmarks/bench_orbit_fit.py)", body)
+    publish("Orbit fit (benchmarks/bench_orbit_fit.py)", lines, args.quick)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,15 @@ class MapPanel:
     title: str
 
 
+def _save(fig, path) -> Path:
+    """Lay out, write as PNG atomically, close."""
+    fig.tight_layout()
+    with atomic_path(path) as temporary:
+        fig.savefig(temporary, format="png", dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
 def _graticule(ax, projection, x_limits, y_limits):
     """Meridians and parallels (1°/5° apart on small maps, 5°/20° on large ones) on projected axes."""
     span_km = max(np.ptp(x_limits), np.ptp(y_limits)) / 1000.0
@@ -92,11 +101,7 @@ def plot_maps(path: str | os.PathLike, panels: Sequence[MapPanel], title: str) -
     for ax, panel in zip(axes[0], panels, strict=True):
         _draw_panel(ax, panel)
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    with atomic_path(path) as temporary:
-        fig.savefig(temporary, format="png", dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return _save(fig, path)
 
 
 def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, label: str, points=None) -> Path:
@@ -119,8 +124,4 @@ def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, l
     ax.set_ylabel("scan line")
     ax.invert_yaxis()
     ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    with atomic_path(path) as temporary:
-        fig.savefig(temporary, format="png", dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return _save(fig, path)

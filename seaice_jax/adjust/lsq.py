@@ -190,7 +190,10 @@ def make_solver(
         gn_ok = gauss_newton.result == optx.RESULTS.successful
 
         def fallback():
-            marquardt = optx.least_squares(whitened, optx.LevenbergMarquardt(tolerance, tolerance), x_start, data,
+            # under vmap both branches run: lanes where Gauss-Newton converged restart from its solution (one
+            # step), the others from the original start
+            restart = jnp.where(gn_ok, gauss_newton.value, x_start)
+            marquardt = optx.least_squares(whitened, optx.LevenbergMarquardt(tolerance, tolerance), restart, data,
                                            max_steps=4 * max_steps, throw=False)
             return (marquardt.value, marquardt.stats["num_steps"] + gauss_newton.stats["num_steps"],
                     marquardt.result == optx.RESULTS.successful)
