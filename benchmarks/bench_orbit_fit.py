@@ -96,8 +96,9 @@ def main():
     sizes = [10, 100] if args.quick else [10, 100, 1000]
     loop_count = 50 if args.quick else 200
     lines += ["### Batch of image fits (same control layout, independent noisy control positions)", "",
-              "| images | vmapped (s) | per image (ms) | Python loop per image (ms) | speed-up | vmapped compile (s) |",
-              "|---:|---:|---:|---:|---:|---:|"]
+              "| images | vmapped (s) | per image (ms) | Python loop per image (ms) | speed-up | vmapped compile (s) | "
+              "iterations, slowest image | all converged |",
+              "|---:|---:|---:|---:|---:|---:|---:|---|"]
     batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, fit_args)))
     lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, loop_count)
     start = time.perf_counter()
@@ -108,9 +109,15 @@ def main():
         lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, n))
         compile_seconds = first_call_time(batch, lats, lons)
         seconds = best_time(batch, lats, lons, repeats=3)
+        result = batch(lats, lons)
         lines.append(f"| {n:,} | {seconds:.3f} | {seconds / n * 1e3:.3f} | {loop_per_image * 1e3:.2f} | "
-                     f"{loop_per_image * n / seconds:.1f}x | {compile_seconds:.2f} |")
-    lines += ["", f"The Python loop calls the warm jitted single-image solver {loop_count} times.", ""]
+                     f"{loop_per_image * n / seconds:.1f}x | {compile_seconds:.2f} | {int(jnp.max(result.steps))} | "
+                     f"{bool(jnp.all(result.converged))} |")
+    lines += ["", f"The Python loop calls the warm jitted single-image solver {loop_count} times. A vmapped batch runs "
+              "until its slowest image is done. Under vmap the Levenberg-Marquardt fallback branch also runs for "
+              "every image (restarted from the converged Gauss-Newton point: 2-19 steps, measured over 2000 "
+              "draws). The 10-image batch has been measured both at ~2 ms in isolation and at the slower time "
+              "shown here inside this script; the cause is not yet understood.", ""]
     publish("Orbit fit (benchmarks/bench_orbit_fit.py)", lines, args.quick)
 
 
