@@ -1,4 +1,5 @@
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -31,3 +32,48 @@ def test_bad_records_are_named():
         NavigationSpline([0.0], np.zeros((1, 3)), np.zeros((1, 3)))
     with pytest.raises(SeaiceError, match=r"must be \(3, 3\)"):
         NavigationSpline([0.0, 1.0, 2.0], np.zeros((3, 2)), np.zeros((3, 3)))
+
+
+def test_moving_average_reproduces_polynomials_and_removes_noise():
+    from seaice_jax.sensors.navigation import moving_average
+
+    t = np.arange(0.0, 1800.0, 10.0)
+    quadratic = np.stack([3.0 + 0.5 * t + 1e-4 * t**2, -2.0 * t], 1)
+    smooth, velocity = moving_average(t, quadratic, window=180.0, order=2)
+    np.testing.assert_allclose(smooth, quadratic, atol=1e-6)
+    np.testing.assert_allclose(velocity[:, 0], 0.5 + 2e-4 * t, atol=1e-8)
+    noise = np.random.default_rng(1).normal(0, 50.0, t.size)
+    filtered, _ = moving_average(t, quadratic[:, :1] + noise[:, None], 180.0, 2)
+    assert np.std(filtered[:, 0] - quadratic[:, 0]) < 0.5 * np.std(noise)
+    weighted, _ = moving_average(t, quadratic[:, :1] + noise[:, None], 180.0, 2, weighting="inverse_cube")
+    # distance⁻³ weights concentrate on the nearest records: less smoothing than flat weights (source 002)
+    assert np.std(weighted[:, 0] - quadratic[:, 0]) > np.std(filtered[:, 0] - quadratic[:, 0])
+    with pytest.raises(SeaiceError, match="weighting must be"):
+        moving_average(t, quadratic, weighting="gauss")
+
+
+def test_error_models():
+    from seaice_jax.sensors.navigation import (
+        SCHULER_PERIOD,
+        ConstantError,
+        LinearError,
+        SchulerError,
+        SplineError,
+    )
+
+    t = np.array([0.0, 600.0, 3600.0])
+    np.testing.assert_allclose(ConstantError(jnp.array([1.0, 2.0]))(t), [[1, 2]] * 3)
+    linear = LinearError(jnp.array([0.0, 100.0]), jnp.array([0.25, -0.1]), 0.0)  # 0.9 km per hour north
+    np.testing.assert_allclose(linear(3600.0), [900.0, -260.0])
+    schuler = SchulerError(jnp.zeros(2), jnp.zeros(2), jnp.array([2000.0, 0.0]), jnp.array([0.0, 1000.0]))
+    np.testing.assert_allclose(schuler(SCHULER_PERIOD / 4), [2000.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(schuler(SCHULER_PERIOD), schuler(0.0), atol=1e-9)
+    # a cubic B-spline reproduces a cubic polynomial exactly with the right control values (partition of unity)
+    spline = SplineError(jnp.ones((8, 2)) * 5.0, 0.0, 600.0)
+    np.testing.assert_allclose(spline(np.linspace(0, 3000, 7)), 5.0, atol=1e-12)
+    knots = np.arange(-1, 7) * 600.0  # control values of a linear function at the knots reproduce it
+    line = SplineError(jnp.stack([knots * 0.1, -knots], 1), 0.0, 600.0)
+    np.testing.assert_allclose(line(np.array([0.0, 750.0, 2999.0]))[:, 0], [0.0, 75.0, 299.9], atol=1e-9)
+    derivative = jax.grad(lambda s: line(s)[0])(1234.0)
+    assert float(derivative) == pytest.approx(0.1)
+    assert SplineError.zeros(0.0, 3600.0, 600.0).coefficients.shape == (9, 2)

@@ -1,11 +1,15 @@
-"""Navigation records and their interpolation (sources 000 and 002: inertial navigation every 10 s).
+"""Navigation records, their interpolation and filtering, and models of their errors (sources 000 and 002).
 
-:class:`NavigationSpline` is a trajectory (``t -> (position, velocity)``) usable by
-:func:`seaice_jax.geometry.range_doppler.imaging_time_and_range`.
+* :class:`NavigationSpline`: a trajectory (``t -> (position, velocity)``) through the records, usable by
+  :func:`seaice_jax.geometry.range_doppler.imaging_time_and_range`.
+* :func:`moving_average`: the low-pass filter of source 002 (moving polynomial, flat or distance⁻³ weights).
+* Error models as JAX functions of their coefficients (unknowns of the block adjustment): :class:`ConstantError`,
+  :class:`LinearError`, :class:`SchulerError` (84.4-min oscillation), :class:`SplineError` (cubic B-spline).
 """
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from seaice_jax.errors import SeaiceError
@@ -59,3 +63,115 @@ class NavigationSpline(eqx.Module):
         position = h00 * p0 + h10 * v0 + h01 * p1 + h11 * v1
         velocity = (d00 * p0 + d10 * v0 + d01 * p1 + d11 * v1) / h
         return position, velocity
+
+
+SCHULER_PERIOD = 84.4 * 60.0
+"""Schuler period of inertial navigation errors, seconds (84.4 min; sources 000, 002)."""
+
+
+def moving_average(times, values, window: float = 180.0, order: int = 2, weighting: str = "flat"):
+    """Low-pass filter of navigation records by a moving local polynomial (source 002, section 2.4).
+
+    At each record time a polynomial of degree ``order`` is fitted to the records within ±window/2 and evaluated
+    there; its derivative is the filtered velocity. ``order=0`` is the plain moving average. Source 002 found a
+    second-order moving average over 3 minutes of 10-s records, with flat weights, best ("Table 1"): weights
+    ∝ distance⁻³ from the estimation point (``weighting="inverse_cube"``) were worse.
+
+    Args:
+        times: ``(n,)`` seconds, increasing. values: ``(n, k)`` e.g. positions.
+        window: seconds. order: polynomial degree (0, 1, 2, ...). weighting: ``"flat"`` or ``"inverse_cube"``
+            (the distance is floored at half the record spacing so the centre point has a finite weight).
+
+    Returns:
+        ``(smoothed (n, k), derivative (n, k))``.
+    """
+    times = np.asarray(times, float)
+    values = np.asarray(values, float)
+    if values.ndim == 1:
+        values = values[:, None]
+    if weighting not in ("flat", "inverse_cube"):
+        raise SeaiceError(f"weighting must be 'flat' or 'inverse_cube', got {weighting!r}")
+    spacing = float(np.median(np.diff(times))) if times.size > 1 else 1.0
+    smoothed = np.empty_like(values)
+    derivative = np.empty_like(values)
+    for i, t in enumerate(times):
+        near = np.abs(times - t) <= window / 2 + 1e-9
+        dt = times[near] - t
+        if near.sum() <= order:
+            raise SeaiceError(f"navigation record {i}: only {int(near.sum())} records within the {window:g}-s window "
+                              f"for a degree-{order} moving polynomial")
+        if weighting == "flat":
+            weight = np.ones_like(dt)
+        else:
+            weight = 1.0 / np.maximum(np.abs(dt), spacing / 2) ** 3
+        design = np.vander(dt, order + 1, increasing=True) * np.sqrt(weight)[:, None]
+        coefficients, *_ = np.linalg.lstsq(design, values[near] * np.sqrt(weight)[:, None], rcond=None)
+        smoothed[i] = coefficients[0]
+        derivative[i] = coefficients[1] if order >= 1 else np.nan
+    return smoothed, derivative
+
+
+class ConstantError(eqx.Module):
+    """Navigation error constant in time: e(t) = offset. ``offset``: ``(k,)`` (e.g. north, east in metres)."""
+
+    offset: Float[Array, " k"]
+
+    def __call__(self, time):
+        time = jnp.asarray(time, float)
+        return jnp.broadcast_to(self.offset, time.shape + self.offset.shape)
+
+
+class LinearError(eqx.Module):
+    """e(t) = offset + rate (t − epoch): the drift of an inertial platform (0.5-1 km per hour of flight)."""
+
+    offset: Float[Array, " k"]
+    rate: Float[Array, " k"]
+    epoch: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=0.0)
+
+    def __call__(self, time):
+        dt = jnp.asarray(time, float) - self.epoch
+        return self.offset + dt[..., None] * self.rate
+
+
+class SchulerError(eqx.Module):
+    """e(t) = offset + rate (t − epoch) + sine sin ω(t − epoch) + cosine cos ω(t − epoch), ω = 2π / 84.4 min."""
+
+    offset: Float[Array, " k"]
+    rate: Float[Array, " k"]
+    sine: Float[Array, " k"]
+    cosine: Float[Array, " k"]
+    epoch: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=0.0)
+    period: float = eqx.field(static=True, default=SCHULER_PERIOD)
+
+    def __call__(self, time):
+        dt = jnp.asarray(time, float) - self.epoch
+        phase = (2.0 * jnp.pi / self.period * dt)[..., None]
+        return self.offset + dt[..., None] * self.rate + jnp.sin(phase) * self.sine + jnp.cos(phase) * self.cosine
+
+
+class SplineError(eqx.Module):
+    """Uniform cubic B-spline in time: e(t) = Σ_j B_j(t) c_j, knots every ``spacing`` seconds from ``start``.
+
+    Attributes:
+        coefficients: ``(m, k)`` control values, m >= 4; the spline covers [start, start + (m − 3) spacing]
+            (beyond it the end pieces extend).
+        start, spacing: seconds.
+    """
+
+    coefficients: Float[Array, "m k"]
+    start: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float))
+    spacing: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float))
+
+    @classmethod
+    def zeros(cls, start, end, spacing, components=2):
+        """A zero spline covering [start, end] with knots every ``spacing`` seconds."""
+        pieces = max(int(np.ceil((end - start) / spacing)), 1)
+        return cls(jnp.zeros((pieces + 3, components)), start, spacing)
+
+    def __call__(self, time):
+        position = (jnp.asarray(time, float) - self.start) / self.spacing
+        pieces = self.coefficients.shape[0] - 3
+        i = jnp.clip(jnp.floor(position), 0, pieces - 1).astype(int)
+        u = (position - i)[..., None]
+        basis = ((1 - u) ** 3 / 6, (3 * u**3 - 6 * u**2 + 4) / 6, (-3 * u**3 + 3 * u**2 + 3 * u + 1) / 6, u**3 / 6)
+        return sum(b * self.coefficients[i + j] for j, b in enumerate(basis))
