@@ -116,6 +116,13 @@ class Solver:
         """``(m, u)`` Jacobian of the whitened residuals at the free-unknown vector ``x``."""
         return self._jacobian(x, ({g: jnp.asarray(v, float) for g, v in observed.items()}, args))
 
+    def check_rank(self, x, observed, args=None, where="at the initial values"):
+        """Raise :class:`RankDeficiencyError` naming the parameters the observations cannot determine at ``x``."""
+        undetermined = undetermined_parameters(self.jacobian_at(x, observed, args), self.parameter_names)
+        if undetermined:
+            raise RankDeficiencyError(f"rank-deficient adjustment {where}: the observations cannot determine "
+                                      f"{', '.join(undetermined)}", undetermined)
+
 
 def make_solver(
     model: Callable[[PyTree, object], Mapping[str, Array]],
@@ -268,17 +275,13 @@ def least_squares(model, parameters, observations, *, args=None, **options) -> A
             the solution), never a silent pseudo-inverse.
     """
     solver = make_solver(model, parameters, observations, args=args, **options)
-    names = solver.parameter_names
     observed = {g: observations[g].values for g in observations}
-    _raise_if_rank_deficient(solver.jacobian_at(solver.start, observed, args), names, "at the initial values")
-    result = solver(observed, args)
-    _raise_if_rank_deficient(solver.jacobian_at(solver.flatten(result.parameters), observed, args), names,
-                             "at the solution")
+    return checked_solve(solver, observed, args)
+
+
+def checked_solve(solver: Solver, observed, args=None, start=None) -> Adjustment:
+    """``solver(observed, args, start)`` with the rank checked at the start and at the solution (eager use)."""
+    solver.check_rank(solver.start if start is None else solver.flatten(start), observed, args)
+    result = solver(observed, args, start)
+    solver.check_rank(solver.flatten(result.parameters), observed, args, "at the solution")
     return result
-
-
-def _raise_if_rank_deficient(jacobian, names, where):
-    undetermined = undetermined_parameters(jacobian, names)
-    if undetermined:
-        raise RankDeficiencyError(f"rank-deficient adjustment {where}: the observations cannot determine "
-                                  f"{', '.join(undetermined)}", undetermined)

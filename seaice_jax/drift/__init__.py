@@ -1,0 +1,1 @@
+"""Ice motion: drift vectors, transformation fits between point sets, deformation."""
