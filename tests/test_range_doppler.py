@@ -222,3 +222,11 @@ def test_jit_vmap_grad():
     # d|p - s|/dr = 1 exactly: a scalar function of the output, differentiated by grad
     slope = jax.grad(lambda r: jnp.linalg.norm(ground_point(s, v, r) - s))(20_000.0)
     assert float(slope) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_on_failure_nan_marks_impossible_points_without_raising():
+    s, v = sensor_state(**AIRCRAFT)
+    p = np.asarray(ground_point(s, v, np.array([20_000.0, 9_000.0]), on_failure="nan"))
+    assert np.isfinite(p[0]).all() and np.isnan(p[1]).all()
+    with pytest.raises(ValueError, match="on_failure"):
+        ground_point(s, v, 20_000.0, on_failure="ignore")

@@ -36,7 +36,8 @@ def _dot(a, b):
 
 
 def ground_point(
-    position, velocity, slant_range, radius=MEAN_RADIUS, look_side="right", wavelength=0.0, doppler=0.0
+    position, velocity, slant_range, radius=MEAN_RADIUS, look_side="right", wavelength=0.0, doppler=0.0,
+    on_failure="raise",
 ):
     """Ground point imaged at slant range ``slant_range`` from a sensor at ``position`` moving with ``velocity``.
 
@@ -61,13 +62,19 @@ def ground_point(
         look_side: ``"right"``, ``"left"`` or an array of +1 (right) / −1 (left).
         wavelength: radar wavelength λ, m (only the product λ f_D matters).
         doppler: Doppler centroid f_D, Hz.
+        on_failure: ``"raise"`` or ``"nan"`` (mark impossible points with NaN, e.g. to process a whole strip
+            and report the failures per point).
 
     Returns:
         ``(..., 3)`` ground point, m. When called outside jit, a slant range with no intersection (shorter than
         the sensor's height, or beyond the horizon) raises :class:`~seaice_jax.errors.GeometryError` naming the
-        indices; inside jit/vmap those points are NaN.
+        indices; inside jit/vmap, or with ``on_failure="nan"``, those points are NaN.
     """
+    if on_failure not in ("raise", "nan"):
+        raise ValueError(f"on_failure must be 'raise' or 'nan', got {on_failure!r}")
     point = _ground_point(position, velocity, slant_range, radius, look_sign(look_side), wavelength, doppler)
+    if on_failure == "nan":
+        return point
     raise_where_nan(
         point,
         "slant range",

@@ -1,0 +1,264 @@
+"""A seeded simulator of an AIDJEX-like airborne radar block (source 000) with known truth.
+
+Flight: parallel strips flown back and forth (180° turns), one look side, swaths overlapping by ``overlap``.
+Each strip's truth is a great-circle flight at constant altitude (:class:`CircularTrajectory`). What the
+instruments record is the truth corrupted by the error sources the sources describe, each switchable:
+
+* inertial navigation: a drift growing ``drift_rate`` per hour of flight, a Schuler oscillation (84.4 min) of
+  ``schuler_amplitude``, a random perturbation at each turn, and 10-s recording noise — applied as north/east
+  offsets of the recorded positions (velocities get the offsets' time derivative);
+* the altimeter: Gaussian noise;
+* the radar: true sweep delay and range scale differ from the nominal ones; time marks jitter;
+* image measurements: Gaussian noise in y growing toward near range (resolution ∝ 1/sin θ) and in x.
+
+Features are points on the ice (height 0 on the sphere) imaged through the *true* geometry: the zero-Doppler time
+on the true trajectory gives x (film along-track coordinate, ``film_rate`` mm/s after the strip start), the true
+slant range gives y = r/f − c (mm).
+"""
+
+from dataclasses import dataclass, field, replace
+
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, unit_vector
+from seaice_jax.geometry.range_doppler import ground_point, imaging_time_and_range
+from seaice_jax.geometry.trajectory import CircularTrajectory
+from seaice_jax.sensors.navigation import SCHULER_PERIOD, NavigationSpline, moving_average
+from seaice_jax.sensors.slar import imaging_time, slant_range
+
+_DEG = np.pi / 180.0
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """Magnitudes of the simulated errors (0 switches one off). Distances in metres, times in seconds."""
+
+    drift_rate: float = 750.0 / 3600.0  # m/s: 0.75 km per hour of flight
+    schuler_amplitude: float = 2000.0
+    turn_perturbation: float = 300.0
+    record_noise: float = 30.0
+    altimeter_noise: float = 5.0
+    sweep_delay_error: float = 0.4  # mm
+    range_scale_error: float = 0.005  # relative
+    time_mark_jitter: float = 0.05  # s
+    image_noise: float = 0.04  # mm in y at 45° incidence (grows as 1/sin θ), and in x
+
+    @classmethod
+    def none(cls):
+        """No errors at all (for checking the geometry end to end)."""
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def only(self, *names):
+        """This model with every error switched off except ``names``."""
+        return replace(ErrorModel.none(), **{n: getattr(self, n) for n in names})
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """The block's geometry.
+
+    Attributes:
+        strips: number of parallel strips. altitude: m. speed: m/s (~600 km/h).
+        strip_duration: s of imaging per strip. turn_duration: s between strips (180° turn).
+        centre_latitude, centre_longitude: degrees, of the first strip's start.
+        heading: degrees, of the first strip (the next ones alternate).
+        near_angle, far_angle: look angles off nadir, degrees (swath edges). look_side: ``"right"``/``"left"``.
+        overlap: fraction of the swath width shared by adjacent strips.
+        record_interval: s between navigation records. film_rate: mm of film per second. time_mark_interval: s.
+        sweep_delay, range_scale: nominal radar constants c0 (mm) and f0 (m/mm).
+    """
+
+    strips: int = 10
+    altitude: float = 10_000.0
+    speed: float = 167.0
+    strip_duration: float = 15 * 60.0
+    turn_duration: float = 3 * 60.0
+    centre_latitude: float = 75.0
+    centre_longitude: float = -150.0
+    heading: float = 90.0
+    near_angle: float = 5.0
+    far_angle: float = 55.0
+    look_side: str = "right"
+    overlap: float = 0.2
+    record_interval: float = 10.0
+    film_rate: float = 0.5
+    time_mark_interval: float = 10.0
+    sweep_delay: float = 10.0
+    range_scale: float = 250.0
+
+    @property
+    def near_range(self):
+        return self.altitude / np.cos(self.near_angle * _DEG)
+
+    @property
+    def far_range(self):
+        return self.altitude / np.cos(self.far_angle * _DEG)
+
+
+@dataclass(frozen=True)
+class StripRecord:
+    """What one strip provides, as real data would (plus its truth, for checking).
+
+    Attributes:
+        name: e.g. ``"S01"``. start_time, end_time: s.
+        record_times: ``(k,)``; record_positions, record_velocities: ``(k, 3)`` recorded navigation (ECEF m, m/s);
+        record_altitudes: ``(k,)`` altimeter readings, m.
+        mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
+        sweep_delay, range_scale: the radar's nominal constants. look_side.
+        truth: the true trajectory; true_sweep_delay, true_range_scale.
+    """
+
+    name: str
+    start_time: float
+    end_time: float
+    record_times: np.ndarray
+    record_positions: np.ndarray
+    record_velocities: np.ndarray
+    record_altitudes: np.ndarray
+    mark_x: np.ndarray
+    mark_times: np.ndarray
+    sweep_delay: float
+    range_scale: float
+    look_side: str
+    truth: CircularTrajectory = field(repr=False)
+    true_sweep_delay: float = 0.0
+    true_range_scale: float = 0.0
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Image measurements of features: one row per (point, strip).
+
+    Attributes:
+        point: ``(m,)`` feature index. strip: ``(m,)`` strip index. x, y: ``(m,)`` image coordinates, mm.
+    """
+
+    point: np.ndarray
+    strip: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+
+def _local_axes(position):
+    """North and east unit vectors ``(..., 3)`` at geocentric positions."""
+    lat, lon = latitude_longitude(position)
+    east = jnp.stack([-jnp.sin(lon), jnp.cos(lon), jnp.zeros_like(lon)], axis=-1)
+    north = jnp.stack([-jnp.sin(lat) * jnp.cos(lon), -jnp.sin(lat) * jnp.sin(lon), jnp.cos(lat)], axis=-1)
+    return np.asarray(north), np.asarray(east)
+
+
+def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts):
+    """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off)."""
+    times = np.asarray(times, float)
+    phase = 2 * np.pi * times / SCHULER_PERIOD
+    # drift along a fixed direction, Schuler oscillation in both axes (quarter-period apart), turn steps
+    error = np.stack([errors.drift_rate * times * 0.8, errors.drift_rate * times * 0.6], 1)
+    rate = np.tile([errors.drift_rate * 0.8, errors.drift_rate * 0.6], (times.size, 1))
+    error += errors.schuler_amplitude * np.stack([np.sin(phase), 0.6 * np.cos(phase)], 1)
+    rate += errors.schuler_amplitude * 2 * np.pi / SCHULER_PERIOD * np.stack([np.cos(phase), -0.6 * np.sin(phase)],
+                                                                              1)
+    strip_index = np.clip(np.searchsorted(strip_starts, times, side="right") - 1, 0, len(strip_starts) - 1)
+    error += turn_offsets[strip_index]
+    return error, rate
+
+
+def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generator, take_off_time: float = 0.0):
+    """Strips of a block (navigation, altimeter, time marks, radar constants) flown ``take_off_time`` s after
+    take-off; returns a list of :class:`StripRecord`."""
+    swath_near = plan.altitude * np.tan(plan.near_angle * _DEG)
+    swath_far = plan.altitude * np.tan(plan.far_angle * _DEG)
+    step = (1.0 - plan.overlap) * (swath_far - swath_near)
+    start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
+    heading = plan.heading * _DEG
+    north0, east0 = (np.asarray(a) for a in _local_axes(start))
+    forward = np.cos(heading) * north0 + np.sin(heading) * east0
+    right = np.cross(forward, np.asarray(start))
+    side = 1.0 if plan.look_side == "right" else -1.0
+    strip_starts = take_off_time + np.arange(plan.strips) * (plan.strip_duration + plan.turn_duration)
+    turn_offsets = np.zeros((plan.strips, 2))
+    turn_offsets[1:] = np.cumsum(rng.normal(0.0, errors.turn_perturbation, (plan.strips - 1, 2)), axis=0)
+    true_sweep = plan.sweep_delay + errors.sweep_delay_error
+    true_scale = plan.range_scale * (1.0 + errors.range_scale_error)
+    records = []
+    for k in range(plan.strips):
+        direction = 1.0 if k % 2 == 0 else -1.0
+        # across track (to the look side of strip 0), swath k spans [near + k step, far + k step]: a strip flown
+        # the other way looks back across its line, so its line lies beyond its swath
+        line = k * step if direction > 0 else k * step + swath_near + swath_far
+        along = 0.0 if direction > 0 else plan.speed * plan.strip_duration
+        position = np.asarray(start) + (along * forward + side * line * right) / MEAN_RADIUS
+        position /= np.linalg.norm(position)
+        lat, lon = (float(a) for a in latitude_longitude(position))
+        strip_heading = heading if direction > 0 else heading + np.pi
+        truth = CircularTrajectory.from_heading(lat, lon, strip_heading, plan.altitude, plan.speed,
+                                                epoch=strip_starts[k])
+        t = np.arange(strip_starts[k] - 60.0, strip_starts[k] + plan.strip_duration + 60.0 + 1e-9,
+                      plan.record_interval)
+        true_position, true_velocity = (np.asarray(a) for a in truth(t))
+        north, east = _local_axes(true_position)
+        error, rate = navigation_error(t, errors, turn_offsets, strip_starts)
+        noise = rng.normal(0.0, errors.record_noise, (t.size, 2))
+        offset = error + noise
+        recorded_position = true_position + offset[:, :1] * north + offset[:, 1:] * east
+        recorded_velocity = true_velocity + rate[:, :1] * north + rate[:, 1:] * east
+        altitudes = plan.altitude + rng.normal(0.0, errors.altimeter_noise, t.size)
+        mark_times = np.arange(strip_starts[k], strip_starts[k] + plan.strip_duration + 1e-9,
+                               plan.time_mark_interval)
+        jitter = rng.normal(0.0, errors.time_mark_jitter, mark_times.size)
+        mark_x = plan.film_rate * (mark_times - strip_starts[k] + jitter)
+        records.append(StripRecord(
+            f"S{k + 1:02d}", strip_starts[k], strip_starts[k] + plan.strip_duration, t, recorded_position,
+            recorded_velocity, altitudes, mark_x, mark_times, plan.sweep_delay, plan.range_scale, plan.look_side,
+            truth, true_sweep, true_scale))
+    return records
+
+
+def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> Measurements:
+    """Measure ground ``points`` ``(n, 3)`` on every strip whose swath and time span contain them."""
+    rows = []
+    for j, strip in enumerate(strips):
+        times, ranges = (np.asarray(a) for a in imaging_time_and_range(
+            points, strip.truth, strip.start_time - 120.0, strip.end_time + 120.0, grid_points=65))
+        position, velocity = (np.asarray(a) for a in strip.truth(times))
+        offset = np.asarray(points) - position
+        right = np.cross(velocity, position)
+        on_side = np.sign(np.sum(offset * right, axis=1)) == (1.0 if strip.look_side == "right" else -1.0)
+        inside = ((times >= strip.start_time) & (times <= strip.end_time) & (ranges >= plan.near_range)
+                  & (ranges <= plan.far_range) & on_side)
+        for i in np.nonzero(inside)[0]:
+            incidence = np.arccos(plan.altitude / ranges[i])
+            sigma_y = errors.image_noise * np.sin(45 * _DEG) / max(np.sin(incidence), 1e-3)
+            # the film moves uniformly; the time marks on it carry their own jitter
+            x = plan.film_rate * (times[i] - strip.start_time) + rng.normal(0.0, errors.image_noise)
+            y = ranges[i] / strip.true_range_scale - strip.true_sweep_delay + rng.normal(0.0, sigma_y)
+            rows.append((i, j, x, y))
+    rows = np.array(rows, float).reshape(-1, 4)
+    return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
+
+
+def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
+            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS):
+    """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
+
+    Time by eq. A1 from the time marks, slant range by eq. A2 (with per-strip ``sweep_delay``/``range_scale`` if
+    given, e.g. from nadir calibration, else the nominal constants), the sensor state from the (filtered)
+    navigation records, the ground point by eq. A5. Points without a solution (a slant range shorter than the
+    flying height after the range errors, say) are NaN rows.
+    """
+    points = np.empty((measurements.x.size, 3))
+    for j, strip in enumerate(strips):
+        rows = measurements.strip == j
+        if not np.any(rows):
+            continue
+        positions, velocities = strip.record_positions, strip.record_velocities
+        if filter_window:
+            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order)
+        navigation = NavigationSpline(strip.record_times, positions, velocities)
+        t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
+        c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
+        f = strip.range_scale if range_scale is None else range_scale[j]
+        r = slant_range(measurements.y[rows], c, f)
+        s, v = navigation(t)
+        points[rows] = np.asarray(ground_point(s, v, r, radius, strip.look_side, on_failure="nan"))
+    return points

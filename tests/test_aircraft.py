@@ -1,0 +1,103 @@
+import numpy as np
+import pytest
+
+from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
+from seaice_jax.simulate.aircraft import (
+    ErrorModel,
+    FlightPlan,
+    _local_axes,
+    image_points,
+    navigation_error,
+    rectify,
+    simulate_flight,
+)
+
+PLAN = FlightPlan(strips=2, strip_duration=600.0)
+
+
+def features(count=120, seed=1):
+    rng = np.random.default_rng(seed)
+    lat = np.radians(rng.uniform(74.75, 75.05, count))
+    lon = np.radians(rng.uniform(-150.1, -146.5, count))
+    return np.asarray(unit_vector(lat, lon)) * MEAN_RADIUS
+
+
+def errors_of(errors, plan=PLAN, seed=0, axes="north-east", **rectify_options):
+    """Ground errors of rectified points along ``axes`` ("north-east", or "across-along" the true track), their
+    imaging times, the measurements and the strips."""
+    rng = np.random.default_rng(seed)
+    strips = simulate_flight(plan, errors, rng)
+    points = features()
+    m = image_points(points, strips, plan, errors, rng)
+    rectified = rectify(strips, m, **rectify_options)
+    assert np.isfinite(rectified).all(axis=1).mean() > 0.9  # a few near-nadir points may have no solution
+    truth = points[m.point]
+    times = np.array([np.interp(x, strips[j].mark_x, strips[j].mark_times) for x, j in zip(m.x, m.strip,
+                                                                                             strict=True)])
+    if axes == "north-east":
+        first, second = _local_axes(truth)
+    else:
+        velocity = np.stack([np.asarray(strips[j].truth(t)[1]) for t, j in zip(times, m.strip, strict=True)])
+        up = truth / np.linalg.norm(truth, axis=1, keepdims=True)
+        second = velocity - np.sum(velocity * up, 1, keepdims=True) * up
+        second /= np.linalg.norm(second, axis=1, keepdims=True)
+        first = np.cross(second, up)
+    difference = rectified - truth
+    keep = np.isfinite(rectified).all(axis=1)
+    error = np.stack([np.sum(difference * first, 1), np.sum(difference * second, 1)], 1)
+    return error[keep], times[keep], m, strips
+
+
+def test_noise_free_with_perfect_navigation_is_exact_to_a_metre():
+    error, _, m, _ = errors_of(ErrorModel.none(), filter_window=None)
+    assert m.x.size > 50 and np.bincount(np.bincount(m.point))[2:].sum() >= 3  # overlaps exist
+    assert np.max(np.abs(error)) < 1.0
+
+
+@pytest.mark.parametrize("name", ["schuler_amplitude", "drift_rate"])
+def test_navigation_errors_move_the_ground_points_by_the_ins_error(name):
+    """Sources 000/002: the inertial position error maps one to one onto the ground; its rate (the velocity
+    error) also tilts the zero-Doppler plane, moving points along track by about (v_err / v) x ground range."""
+    errors = ErrorModel().only(name)
+    error, times, _, strips = errors_of(errors, filter_window=None)
+    starts = np.array([s.start_time for s in strips])
+    expected, rate = navigation_error(times, errors, np.zeros((len(strips), 2)), starts)
+    scale = np.max(np.abs(expected))
+    assert scale > 100.0
+    # the strips fly east or west: north is across track, east along track
+    np.testing.assert_allclose(error[:, 0], expected[:, 0], atol=0.01 * scale + 10.0)
+    far_ground = PLAN.altitude * np.tan(np.radians(PLAN.far_angle))
+    tilt = np.abs(rate[:, 0]) / PLAN.speed * far_ground
+    assert np.all(np.abs(error[:, 1] - expected[:, 1]) <= tilt + 0.01 * scale + 10.0)
+
+
+def test_schuler_signature_has_the_84_minute_period():
+    """Rectified errors over 108 min of flight: a sinusoid fitted with free period finds the Schuler period."""
+    plan = FlightPlan(strips=6, strip_duration=900.0)
+    error, times, _, _ = errors_of(ErrorModel().only("schuler_amplitude"), plan=plan, filter_window=None)
+    periods = np.linspace(40.0, 150.0, 221) * 60.0
+    misfit = []
+    for period in periods:
+        design = np.stack([np.ones_like(times), np.sin(2 * np.pi * times / period),
+                           np.cos(2 * np.pi * times / period)], 1)
+        misfit.append(np.linalg.lstsq(design, error[:, 0], rcond=None)[1][0])
+    assert periods[int(np.argmin(misfit))] / 60.0 == pytest.approx(84.4, rel=0.03)
+
+
+def test_sweep_delay_and_scale_errors_shift_points_across_track_only():
+    for name in ("sweep_delay_error", "range_scale_error"):
+        error, _, m, strips = errors_of(ErrorModel().only(name), axes="across-along", filter_window=None)
+        assert np.max(np.abs(error[:, 1])) < 0.01 * np.max(np.abs(error[:, 0]))
+        assert np.max(np.abs(error[:, 0])) > 50.0
+
+
+def test_time_mark_jitter_shifts_points_along_track_only():
+    error, _, _, _ = errors_of(ErrorModel().only("time_mark_jitter"), axes="across-along", filter_window=None)
+    assert np.max(np.abs(error[:, 0])) < 0.05 * np.max(np.abs(error[:, 1]))
+    assert np.max(np.abs(error[:, 1])) > 2.0
+
+
+def test_recording_noise_is_reduced_by_the_filter():
+    noisy, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=None)
+    filtered, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=180.0)
+    assert np.sqrt(np.mean(filtered**2)) < 0.6 * np.sqrt(np.mean(noisy**2))
