@@ -2,13 +2,13 @@ import numpy as np
 import pytest
 
 from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
+from seaice_jax.sensors.strips import rectify
 from seaice_jax.simulate.aircraft import (
     ErrorModel,
     FlightPlan,
     _local_axes,
     image_points,
     navigation_error,
-    rectify,
     simulate_flight,
 )
 

@@ -45,3 +45,54 @@ def test_fit_from_tie_point_discrepancies():
     assert np.std(noisy(x) - cubic(x)) < 0.05
     with pytest.raises(SeaiceError, match="joint at x = 500: only 0 tie points"):
         fit_piecewise_cubic(x, cubic(x), joints=[0.0, 200.0, 500.0], half_width=50.0)
+
+
+def simulated_block(errors, strips=3, seed=0, count=600):
+    from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
+    from seaice_jax.geometry.projections import TangentPlane
+    from seaice_jax.simulate.aircraft import FlightPlan, image_points, simulate_flight
+
+    plan = FlightPlan(strips=strips)
+    rng = np.random.default_rng(seed)
+    block = simulate_flight(plan, errors, rng)
+    points_rng = np.random.default_rng(seed + 1)
+    lat = np.radians(points_rng.uniform(74.55, 75.05, count))
+    lon = np.radians(points_rng.uniform(-150.2, -144.5, count))
+    m = image_points(np.asarray(unit_vector(lat, lon)) * MEAN_RADIUS, block, plan, errors, rng)
+    plane = TangentPlane(np.radians(74.8), np.radians(-147.5))
+    truth = np.stack([np.asarray(a) for a in plane.forward(lat, lon)], 1)
+    return block, m, plane, truth
+
+
+def test_sequential_block_is_exact_without_errors():
+    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.simulate.aircraft import ErrorModel
+
+    block, m, plane, truth = simulated_block(ErrorModel.none())
+    result = sequential_block(block, m, plane, control={0: truth[0]} if (m.point == 0).any() else None)
+    error = result.point_positions(m, truth.shape[0]) - truth
+    assert np.nanmax(np.abs(error)) < 1.0
+    assert result.tie_before.shape[0] > 10
+
+
+def test_internal_adjustment_removes_tie_discrepancies_and_control_fixes_the_datum():
+    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.simulate.aircraft import ErrorModel
+
+    block, m, plane, truth = simulated_block(ErrorModel())
+    result = sequential_block(block, m, plane)
+    before = np.sqrt(np.mean(result.tie_before**2))
+    after = np.sqrt(np.mean(result.tie_after**2))
+    assert before > 500.0 and after < 0.15 * before  # source 000: ±2.74/±1.75 km -> ±0.07 km
+    assert not any(c.scale_estimated for c in result.calibrations)  # level flight: sweep delay alone
+    measured = np.unique(m.point)
+    one = {int(measured[0]): truth[measured[0]]}
+    shifted = sequential_block(block, m, plane, control=one)
+    np.testing.assert_allclose(shifted.point_positions(m, truth.shape[0])[measured[0]], truth[measured[0]],
+                               atol=1e-6)  # the single control point is met exactly ...
+    shift = shifted.adjusted - shifted.internal
+    shift = shift[np.isfinite(shift).all(axis=1)]  # points with no rectified solution stay NaN
+    np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-6)  # ... by a pure shift
+    no_control = np.sqrt(np.nanmean(np.sum((result.point_positions(m, truth.shape[0]) - truth) ** 2, 1)))
+    with_control = np.sqrt(np.nanmean(np.sum((shifted.point_positions(m, truth.shape[0]) - truth) ** 2, 1)))
+    assert with_control < no_control

@@ -16,16 +16,16 @@ on the true trajectory gives x (film along-track coordinate, ``film_rate`` mm/s 
 slant range gives y = r/f − c (mm).
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, unit_vector
-from seaice_jax.geometry.range_doppler import ground_point, imaging_time_and_range
+from seaice_jax.geometry.range_doppler import imaging_time_and_range
 from seaice_jax.geometry.trajectory import CircularTrajectory
-from seaice_jax.sensors.navigation import SCHULER_PERIOD, NavigationSpline, moving_average
-from seaice_jax.sensors.slar import imaging_time, slant_range
+from seaice_jax.sensors.navigation import SCHULER_PERIOD
+from seaice_jax.sensors.strips import Measurements, StripRecord
 
 _DEG = np.pi / 180.0
 
@@ -96,50 +96,6 @@ class FlightPlan:
         return self.altitude / np.cos(self.far_angle * _DEG)
 
 
-@dataclass(frozen=True)
-class StripRecord:
-    """What one strip provides, as real data would (plus its truth, for checking).
-
-    Attributes:
-        name: e.g. ``"S01"``. start_time, end_time: s.
-        record_times: ``(k,)``; record_positions, record_velocities: ``(k, 3)`` recorded navigation (ECEF m, m/s);
-        record_altitudes: ``(k,)`` altimeter readings, m.
-        mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
-        sweep_delay, range_scale: the radar's nominal constants. look_side.
-        truth: the true trajectory; true_sweep_delay, true_range_scale.
-    """
-
-    name: str
-    start_time: float
-    end_time: float
-    record_times: np.ndarray
-    record_positions: np.ndarray
-    record_velocities: np.ndarray
-    record_altitudes: np.ndarray
-    mark_x: np.ndarray
-    mark_times: np.ndarray
-    sweep_delay: float
-    range_scale: float
-    look_side: str
-    truth: CircularTrajectory = field(repr=False)
-    true_sweep_delay: float = 0.0
-    true_range_scale: float = 0.0
-
-
-@dataclass(frozen=True)
-class Measurements:
-    """Image measurements of features: one row per (point, strip).
-
-    Attributes:
-        point: ``(m,)`` feature index. strip: ``(m,)`` strip index. x, y: ``(m,)`` image coordinates, mm.
-    """
-
-    point: np.ndarray
-    strip: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-
-
 def _local_axes(position):
     """North and east unit vectors ``(..., 3)`` at geocentric positions."""
     lat, lon = latitude_longitude(position)
@@ -207,10 +163,13 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
                                plan.time_mark_interval)
         jitter = rng.normal(0.0, errors.time_mark_jitter, mark_times.size)
         mark_x = plan.film_rate * (mark_times - strip_starts[k] + jitter)
+        # nadir returns: over ice the slant range of the nadir echo is the true flying height
+        nadir_x = plan.film_rate * (mark_times - strip_starts[k])
+        nadir_y = plan.altitude / true_scale - true_sweep + rng.normal(0.0, errors.image_noise, mark_times.size)
         records.append(StripRecord(
             f"S{k + 1:02d}", strip_starts[k], strip_starts[k] + plan.strip_duration, t, recorded_position,
-            recorded_velocity, altitudes, mark_x, mark_times, plan.sweep_delay, plan.range_scale, plan.look_side,
-            truth, true_sweep, true_scale))
+            recorded_velocity, altitudes, mark_x, mark_times, nadir_x, nadir_y, plan.sweep_delay, plan.range_scale,
+            plan.look_side, truth, true_sweep, true_scale))
     return records
 
 
@@ -235,30 +194,3 @@ def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> M
             rows.append((i, j, x, y))
     rows = np.array(rows, float).reshape(-1, 4)
     return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
-
-
-def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
-            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS):
-    """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
-
-    Time by eq. A1 from the time marks, slant range by eq. A2 (with per-strip ``sweep_delay``/``range_scale`` if
-    given, e.g. from nadir calibration, else the nominal constants), the sensor state from the (filtered)
-    navigation records, the ground point by eq. A5. Points without a solution (a slant range shorter than the
-    flying height after the range errors, say) are NaN rows.
-    """
-    points = np.empty((measurements.x.size, 3))
-    for j, strip in enumerate(strips):
-        rows = measurements.strip == j
-        if not np.any(rows):
-            continue
-        positions, velocities = strip.record_positions, strip.record_velocities
-        if filter_window:
-            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order)
-        navigation = NavigationSpline(strip.record_times, positions, velocities)
-        t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
-        c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
-        f = strip.range_scale if range_scale is None else range_scale[j]
-        r = slant_range(measurements.y[rows], c, f)
-        s, v = navigation(t)
-        points[rows] = np.asarray(ground_point(s, v, r, radius, strip.look_side, on_failure="nan"))
-    return points

@@ -1,0 +1,90 @@
+"""Radar strips as the instruments record them, and their rectification (source 000, steps 1-3).
+
+A :class:`StripRecord` holds what one strip provides — navigation records, altimeter, time marks, nadir returns,
+the radar's nominal constants — and :class:`Measurements` the image coordinates of points on the strips.
+:func:`rectify` turns measurements into ground points by the radargrammetric method (eqs A1, A2, A5 with filtered
+navigation). Simulated strips also carry their truth (``truth``, ``true_sweep_delay``, ``true_range_scale``).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from seaice_jax.geometry.earth import MEAN_RADIUS
+from seaice_jax.geometry.range_doppler import ground_point
+from seaice_jax.sensors.navigation import NavigationSpline, moving_average
+from seaice_jax.sensors.slar import imaging_time, slant_range
+
+
+@dataclass(frozen=True)
+class StripRecord:
+    """What one strip provides, as real data would (plus its truth, for checking).
+
+    Attributes:
+        name: e.g. ``"S01"``. start_time, end_time: s.
+        record_times: ``(k,)``; record_positions, record_velocities: ``(k, 3)`` recorded navigation (ECEF m, m/s);
+        record_altitudes: ``(k,)`` altimeter readings, m.
+        mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
+        nadir_x, nadir_y: ``(n,)`` image coordinates of nadir returns (one per time mark), mm.
+        sweep_delay, range_scale: the radar's nominal constants. look_side.
+        truth: the true trajectory; true_sweep_delay, true_range_scale.
+    """
+
+    name: str
+    start_time: float
+    end_time: float
+    record_times: np.ndarray
+    record_positions: np.ndarray
+    record_velocities: np.ndarray
+    record_altitudes: np.ndarray
+    mark_x: np.ndarray
+    mark_times: np.ndarray
+    nadir_x: np.ndarray
+    nadir_y: np.ndarray
+    sweep_delay: float
+    range_scale: float
+    look_side: str
+    truth: object = field(default=None, repr=False)
+    true_sweep_delay: float = float("nan")
+    true_range_scale: float = float("nan")
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """Image measurements of features: one row per (point, strip).
+
+    Attributes:
+        point: ``(m,)`` feature index. strip: ``(m,)`` strip index. x, y: ``(m,)`` image coordinates, mm.
+    """
+
+    point: np.ndarray
+    strip: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+
+def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
+            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS):
+    """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
+
+    Time by eq. A1 from the time marks, slant range by eq. A2 (with per-strip ``sweep_delay``/``range_scale`` if
+    given, e.g. from nadir calibration, else the nominal constants), the sensor state from the (filtered)
+    navigation records, the ground point by eq. A5. Points without a solution (a slant range shorter than the
+    flying height after the range errors, say) are NaN rows.
+    """
+    points = np.empty((measurements.x.size, 3))
+    for j, strip in enumerate(strips):
+        rows = measurements.strip == j
+        if not np.any(rows):
+            continue
+        positions, velocities = strip.record_positions, strip.record_velocities
+        if filter_window:
+            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order)
+        navigation = NavigationSpline(strip.record_times, positions, velocities)
+        t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
+        c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
+        f = strip.range_scale if range_scale is None else range_scale[j]
+        r = slant_range(measurements.y[rows], c, f)
+        s, v = navigation(t)
+        points[rows] = np.asarray(ground_point(s, v, r, radius, strip.look_side, on_failure="nan"))
+    return points
