@@ -101,3 +101,36 @@ def test_recording_noise_is_reduced_by_the_filter():
     noisy, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=None)
     filtered, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=180.0)
     assert np.sqrt(np.mean(filtered**2)) < 0.6 * np.sqrt(np.mean(noisy**2))
+
+
+def test_aidjex_scenario_has_overlapping_strips_drift_and_stations():
+    from seaice_jax.drift.kinematics import fit_transform
+    from seaice_jax.simulate.aircraft import aidjex_scenario
+
+    scenario = aidjex_scenario(seed=3, plan=FlightPlan(strips=4), features=300)
+    assert len(scenario.coverages) == 2 and list(scenario.kinds[:3]) == ["station"] * 3
+    for coverage in scenario.coverages:
+        m = coverage.measurements
+        on = [set(m.point[m.strip == j]) for j in range(4)]
+        assert all(len(on[j] & on[j + 1]) >= 5 for j in range(3))  # ties in every overlap
+        assert set(coverage.control) == {0, 1, 2}
+    first, second = (c.truth for c in scenario.coverages)
+    fit = fit_transform(first, second, "affine", sigma=100.0)
+    np.testing.assert_allclose(fit.parameters["shift"], [-1900.0 * 16, 0.0], atol=300.0)  # 1.9 km/day west
+    np.testing.assert_allclose(fit.parameters["matrix"], [[1.10, 0.03], [0.0, 0.95]], atol=0.01)
+    assert scenario.coverages[1].epoch == 16 * 86400.0
+
+
+def test_prudhoe_scenario_single_control_point_removes_most_of_the_error():
+    """Source 002, Table 2: one ground control point reduces km-level errors to a few hundred metres."""
+    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.simulate.aircraft import prudhoe_scenario
+
+    scenario = prudhoe_scenario(seed=1)
+    coverage = scenario.coverages[0]
+    m, truth = coverage.measurements, coverage.truth
+    none = sequential_block(coverage.strips, m, scenario.plane)
+    one = sequential_block(coverage.strips, m, scenario.plane, control={0: np.array(coverage.control[0][:2])})
+    rms_none = np.sqrt(np.nanmean((none.point_positions(m, truth.shape[0]) - truth) ** 2))
+    rms_one = np.sqrt(np.nanmean((one.point_positions(m, truth.shape[0]) - truth) ** 2))
+    assert rms_none > 1000.0 and rms_one < 0.3 * rms_none

@@ -48,20 +48,11 @@ def test_fit_from_tie_point_discrepancies():
 
 
 def simulated_block(errors, strips=3, seed=0, count=600):
-    from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
-    from seaice_jax.geometry.projections import TangentPlane
-    from seaice_jax.simulate.aircraft import FlightPlan, image_points, simulate_flight
+    from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 
-    plan = FlightPlan(strips=strips)
-    rng = np.random.default_rng(seed)
-    block = simulate_flight(plan, errors, rng)
-    points_rng = np.random.default_rng(seed + 1)
-    lat = np.radians(points_rng.uniform(74.55, 75.05, count))
-    lon = np.radians(points_rng.uniform(-150.2, -144.5, count))
-    m = image_points(np.asarray(unit_vector(lat, lon)) * MEAN_RADIUS, block, plan, errors, rng)
-    plane = TangentPlane(np.radians(74.8), np.radians(-147.5))
-    truth = np.stack([np.asarray(a) for a in plane.forward(lat, lon)], 1)
-    return block, m, plane, truth
+    scenario = aidjex_scenario(seed, plan=FlightPlan(strips=strips), errors=errors, features=count)
+    coverage = scenario.coverages[0]
+    return coverage.strips, coverage.measurements, scenario.plane, coverage.truth
 
 
 def test_sequential_block_is_exact_without_errors():

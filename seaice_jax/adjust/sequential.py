@@ -134,7 +134,8 @@ class SequentialResult:
 def _track_axes(x, positions):
     """Unit vectors (across, along) of a strip in the map: along = direction of increasing film x."""
     keep = np.isfinite(positions).all(axis=1)
-    slope = np.polyfit(x[keep], positions[keep], 1)[0]
+    centred = x[keep] - x[keep].mean()
+    slope = centred @ (positions[keep] - positions[keep].mean(axis=0))
     along = slope / np.linalg.norm(slope)
     return np.array([along[1], -along[0]]), along
 

@@ -145,10 +145,13 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         along = 0.0 if direction > 0 else plan.speed * plan.strip_duration
         position = np.asarray(start) + (along * forward + side * line * right) / MEAN_RADIUS
         position /= np.linalg.norm(position)
-        lat, lon = (float(a) for a in latitude_longitude(position))
-        strip_heading = heading if direction > 0 else heading + np.pi
-        truth = CircularTrajectory.from_heading(lat, lon, strip_heading, plan.altitude, plan.speed,
-                                                epoch=strip_starts[k])
+        # fly parallel to strip 0 in the map: its forward direction, made horizontal here (a heading taken from
+        # the start would be off by the meridians' convergence, ~3° over 150 km at 75°N)
+        direction_here = direction * (forward - (forward @ position) * position)
+        direction_here /= np.linalg.norm(direction_here)
+        radius = MEAN_RADIUS + plan.altitude
+        truth = CircularTrajectory(jnp.asarray(position), jnp.asarray(direction_here), jnp.asarray(radius),
+                                   jnp.asarray(plan.speed / radius), jnp.asarray(strip_starts[k]))
         t = np.arange(strip_starts[k] - 60.0, strip_starts[k] + plan.strip_duration + 60.0 + 1e-9,
                       plan.record_interval)
         true_position, true_velocity = (np.asarray(a) for a in truth(t))
@@ -194,3 +197,125 @@ def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> M
             rows.append((i, j, x, y))
     rows = np.array(rows, float).reshape(-1, 4)
     return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """One flight over the block: its strips and the image measurements of the features on them.
+
+    Attributes:
+        name: e.g. the date. epoch: s of the flight's take-off (from the scenario's time origin).
+        strips, measurements: as recorded. truth: ``(n, 2)`` true map positions of all features at this flight.
+        control: ``{feature index: (x, y, σ)}`` map positions known independently (stations, map points).
+    """
+
+    name: str
+    epoch: float
+    strips: list
+    measurements: Measurements
+    truth: np.ndarray
+    control: dict
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulated project: coverages of the same features, in one map plane.
+
+    Attributes:
+        name: ``"aidjex"`` or ``"prudhoe"``. plane: the tangent-plane map projection. plan, errors: as flown.
+        kinds: ``(n,)`` per feature: ``"ice"``, ``"station"`` or ``"land"``. coverages: in time order.
+    """
+
+    name: str
+    plane: object
+    plan: FlightPlan
+    errors: ErrorModel
+    kinds: np.ndarray
+    coverages: tuple
+
+
+def _to_ground(plane, xy):
+    lat, lon = plane.inverse(xy[:, 0], xy[:, 1])
+    return np.asarray(unit_vector(lat, lon)) * MEAN_RADIUS
+
+
+def _block_plane(plan: FlightPlan):
+    """Tangent plane at the middle of the block flown by ``plan`` (flight lines step to the look side)."""
+    from seaice_jax.geometry.projections import TangentPlane
+
+    start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
+    north, east = (np.asarray(a) for a in _local_axes(np.asarray(start)))
+    forward = np.cos(plan.heading * _DEG) * north + np.sin(plan.heading * _DEG) * east
+    right = np.cross(forward, np.asarray(start))
+    side = 1.0 if plan.look_side == "right" else -1.0
+    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    across = side * ((plan.strips - 1) * (1 - plan.overlap) * width + width) / 2
+    middle = np.asarray(start) + (plan.speed * plan.strip_duration / 2 * forward + across * right) / MEAN_RADIUS
+    lat, lon = (float(a) for a in latitude_longitude(middle))
+    return TangentPlane(lat, lon)
+
+
+def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: ErrorModel | None = None,
+                    features: int = 600, days: float = 16.0, drift_per_day: float = 1900.0,
+                    deformation: float = 0.10, station_sigma: float = 100.0) -> Scenario:
+    """The AIDJEX experiment of source 000: a block of strips over drifting ice, flown twice ``days`` apart.
+
+    Between the flights the ice drifts ``drift_per_day`` m/day westward, deforms by an affine ``deformation``
+    (a 10 % stretch and shear about the block centre) and its floes move by ~100 m each (small rotations). Three
+    manned drifting stations, forming a triangle, are control points with satellite-fix accuracy
+    ``station_sigma``; the second flight is shifted with the ice so it covers the same features.
+    """
+    plan = plan or FlightPlan()
+    errors = errors or ErrorModel()
+    rng = np.random.default_rng(seed)
+    plane = _block_plane(plan)
+    half_along = plan.speed * plan.strip_duration / 2
+    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    half_across = ((plan.strips - 1) * (1 - plan.overlap) * width + width) / 2
+    heading = plan.heading * _DEG
+    along, across = np.array([np.sin(heading), np.cos(heading)]), np.array([np.cos(heading), -np.sin(heading)])
+    side = 1.0 if plan.look_side == "right" else -1.0
+    local = np.stack([rng.uniform(-0.95, 0.95, features) * half_along,
+                      rng.uniform(-0.95, 0.95, features) * half_across], 1)
+    local[:3] = [[-0.5 * half_along, -0.4 * half_across], [0.5 * half_along, -0.4 * half_across],
+                 [0.0, 0.5 * half_across]]  # the three stations, a triangle
+    first = local[:, :1] * along + side * local[:, 1:] * across
+    kinds = np.array(["station"] * 3 + ["ice"] * (features - 3))
+    shift = np.array([-drift_per_day * days, 0.0])  # westward
+    matrix = np.array([[1.0 + deformation, 0.3 * deformation], [0.0, 1.0 - 0.5 * deformation]])
+    second = first @ matrix.T + shift + rng.normal(0.0, 100.0, first.shape)
+    start = np.array([float(a) for a in plane.forward(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)])
+    coverages = []
+    for k, (positions, name) in enumerate(((first, "day 0"), (second, f"day {days:g}"))):
+        lat, lon = plane.inverse(*(start + (shift if k else 0.0)))  # the second flight follows the ice
+        flown = replace(plan, centre_latitude=float(np.degrees(lat)), centre_longitude=float(np.degrees(lon)))
+        strips = simulate_flight(flown, errors, rng, take_off_time=3600.0)
+        measurements = image_points(_to_ground(plane, positions), strips, flown, errors, rng)
+        control = {i: (*(positions[i] + rng.normal(0.0, station_sigma, 2)), station_sigma) for i in range(3)}
+        coverages.append(Coverage(name, k * days * 86400.0, strips, measurements, positions, control))
+    return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages))
+
+
+def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_points: int = 20,
+                     map_sigma: float = 50.0, hours_after_take_off: float = 5.0) -> Scenario:
+    """Prudhoe Bay (source 002): land (no motion) with ~20 map control points of ±50 m, imaged by single strips on
+    two days along the meridian 149°15'W, each about 5 h after take-off (large accumulated navigation errors)."""
+    errors = errors or ErrorModel()
+    rng = np.random.default_rng(seed)
+    plan = FlightPlan(strips=1, strip_duration=1200.0, centre_latitude=69.9, centre_longitude=-149.25,
+                      heading=0.0)
+    plane = _block_plane(plan)
+    half_along = plan.speed * plan.strip_duration / 2
+    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    count = control_points + 60
+    local = np.stack([rng.uniform(-0.9, 0.9, count) * half_along, rng.uniform(-0.45, 0.45, count) * width], 1)
+    side = 1.0 if plan.look_side == "right" else -1.0
+    positions = np.stack([side * local[:, 1], local[:, 0]], 1)  # heading north: along = y, across = x
+    kinds = np.array(["land"] * count)
+    coverages = []
+    for day in range(2):
+        strips = simulate_flight(plan, errors, rng, take_off_time=hours_after_take_off * 3600.0)
+        measurements = image_points(_to_ground(plane, positions), strips, plan, errors, rng)
+        control = {i: (*(positions[i] + rng.normal(0.0, map_sigma, 2)), map_sigma) for i in range(control_points)}
+        coverages.append(Coverage(f"day {5 * day}", day * 5 * 86400.0, strips, measurements, positions, control))
+    return Scenario("prudhoe", plane, plan, errors, kinds, tuple(coverages))
