@@ -8,7 +8,6 @@ from seaice_jax.simulate.aircraft import (
     FlightPlan,
     _local_axes,
     image_points,
-    navigation_error,
     simulate_flight,
 )
 
@@ -24,7 +23,7 @@ def features(count=120, seed=1):
 
 def errors_of(errors, plan=PLAN, seed=0, axes="north-east", **rectify_options):
     """Ground errors of rectified points along ``axes`` ("north-east", or "across-along" the true track), their
-    imaging times, the measurements and the strips."""
+    imaging times and strips, the measurements and the strips (points without a solution dropped)."""
     rng = np.random.default_rng(seed)
     strips = simulate_flight(plan, errors, rng)
     points = features()
@@ -45,11 +44,11 @@ def errors_of(errors, plan=PLAN, seed=0, axes="north-east", **rectify_options):
     difference = rectified - truth
     keep = np.isfinite(rectified).all(axis=1)
     error = np.stack([np.sum(difference * first, 1), np.sum(difference * second, 1)], 1)
-    return error[keep], times[keep], m, strips
+    return error[keep], times[keep], m.strip[keep], m, strips
 
 
 def test_noise_free_with_perfect_navigation_is_exact_to_a_metre():
-    error, _, m, _ = errors_of(ErrorModel.none(), filter_window=None)
+    error, _, _, m, _ = errors_of(ErrorModel.none(), filter_window=None)
     assert m.x.size > 50 and np.bincount(np.bincount(m.point))[2:].sum() >= 3  # overlaps exist
     assert np.max(np.abs(error)) < 1.0
 
@@ -59,9 +58,12 @@ def test_navigation_errors_move_the_ground_points_by_the_ins_error(name):
     """Sources 000/002: the inertial position error maps one to one onto the ground; its rate (the velocity
     error) also tilts the zero-Doppler plane, moving points along track by about (v_err / v) x ground range."""
     errors = ErrorModel().only(name)
-    error, times, _, strips = errors_of(errors, filter_window=None)
-    starts = np.array([s.start_time for s in strips])
-    expected, rate = navigation_error(times, errors, np.zeros((len(strips), 2)), starts)
+    error, times, strip_of, _, strips = errors_of(errors, filter_window=None)
+    expected = np.stack([[np.interp(t, strips[j].record_times, strips[j].true_navigation_error[:, c])
+                          for c in range(2)] for t, j in zip(times, strip_of, strict=True)])
+    rate = np.stack([[np.interp(t, strips[j].record_times,
+                                np.gradient(strips[j].true_navigation_error[:, c], strips[j].record_times))
+                      for c in range(2)] for t, j in zip(times, strip_of, strict=True)])
     scale = np.max(np.abs(expected))
     assert scale > 100.0
     # the strips fly east or west: north is across track, east along track
@@ -74,7 +76,7 @@ def test_navigation_errors_move_the_ground_points_by_the_ins_error(name):
 def test_schuler_signature_has_the_84_minute_period():
     """Rectified errors over 108 min of flight: a sinusoid fitted with free period finds the Schuler period."""
     plan = FlightPlan(strips=6, strip_duration=900.0)
-    error, times, _, _ = errors_of(ErrorModel().only("schuler_amplitude"), plan=plan, filter_window=None)
+    error, times, _, _, _ = errors_of(ErrorModel().only("schuler_amplitude"), plan=plan, filter_window=None)
     periods = np.linspace(40.0, 150.0, 221) * 60.0
     misfit = []
     for period in periods:
@@ -86,20 +88,20 @@ def test_schuler_signature_has_the_84_minute_period():
 
 def test_sweep_delay_and_scale_errors_shift_points_across_track_only():
     for name in ("sweep_delay_error", "range_scale_error"):
-        error, _, m, strips = errors_of(ErrorModel().only(name), axes="across-along", filter_window=None)
+        error, _, _, _, _ = errors_of(ErrorModel().only(name), axes="across-along", filter_window=None)
         assert np.max(np.abs(error[:, 1])) < 0.01 * np.max(np.abs(error[:, 0]))
         assert np.max(np.abs(error[:, 0])) > 50.0
 
 
 def test_time_mark_jitter_shifts_points_along_track_only():
-    error, _, _, _ = errors_of(ErrorModel().only("time_mark_jitter"), axes="across-along", filter_window=None)
+    error, _, _, _, _ = errors_of(ErrorModel().only("time_mark_jitter"), axes="across-along", filter_window=None)
     assert np.max(np.abs(error[:, 0])) < 0.05 * np.max(np.abs(error[:, 1]))
     assert np.max(np.abs(error[:, 1])) > 2.0
 
 
 def test_recording_noise_is_reduced_by_the_filter():
-    noisy, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=None)
-    filtered, _, _, _ = errors_of(ErrorModel().only("record_noise"), filter_window=180.0)
+    noisy, *_ = errors_of(ErrorModel().only("record_noise"), filter_window=None)
+    filtered, *_ = errors_of(ErrorModel().only("record_noise"), filter_window=180.0)
     assert np.sqrt(np.mean(filtered**2)) < 0.6 * np.sqrt(np.mean(noisy**2))
 
 

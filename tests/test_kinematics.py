@@ -60,6 +60,8 @@ def test_drift_vectors_and_errors():
     assert drift.speed[0] * 86_400 == pytest.approx(1900.0)  # 1.9 km/day westward, as in AIDJEX
     with pytest.raises(SeaiceError, match="interval"):
         drift_vectors([[0, 0]], [[1, 1]], 0.0)
+    with pytest.raises(SeaiceError, match="point 1: position is not finite"):
+        fit_transform([[0, 0], [np.nan, 1], [2, 2]], [[0, 0], [1, 1], [2, 2]])
     with pytest.raises(SeaiceError, match="affine fit needs at least 3 points"):
         fit_transform([[0, 0], [1, 1]], [[0, 0], [1, 1]], "affine")
     with pytest.raises(RankDeficiencyError):

@@ -105,6 +105,9 @@ def fit_transform(earlier, later, kind: str = "rigid", sigma: float = 1.0) -> Tr
     earlier, later = np.asarray(earlier, float), np.asarray(later, float)
     if earlier.shape != later.shape or earlier.ndim != 2 or earlier.shape[1] != 2:
         raise SeaiceError(f"point sets must both be (n, 2), got {earlier.shape} and {later.shape}")
+    bad = np.nonzero(~(np.isfinite(earlier).all(axis=1) & np.isfinite(later).all(axis=1)))[0]
+    if bad.size:
+        raise SeaiceError(f"point {int(bad[0])}: position is not finite ({bad.size} such points); drop them first")
     needed = {"rigid": 2, "similarity": 2, "affine": 3}[kind]
     if earlier.shape[0] < needed:
         raise SeaiceError(f"a {kind} fit needs at least {needed} points, got {earlier.shape[0]}")

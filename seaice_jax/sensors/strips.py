@@ -27,7 +27,8 @@ class StripRecord:
         mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
         nadir_x, nadir_y: ``(n,)`` image coordinates of nadir returns (one per time mark), mm.
         sweep_delay, range_scale: the radar's nominal constants. look_side.
-        truth: the true trajectory; true_sweep_delay, true_range_scale.
+        truth: the true trajectory; true_sweep_delay, true_range_scale; true_navigation_error: ``(k, 2)`` the
+            systematic north/east error of the recorded positions at the record times (simulations only).
     """
 
     name: str
@@ -47,6 +48,7 @@ class StripRecord:
     truth: object = field(default=None, repr=False)
     true_sweep_delay: float = float("nan")
     true_range_scale: float = float("nan")
+    true_navigation_error: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)

@@ -104,13 +104,19 @@ def _local_axes(position):
     return np.asarray(north), np.asarray(east)
 
 
-def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts):
-    """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off)."""
+def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts, drift_direction=0.6435,
+                     schuler_phase=0.0):
+    """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off).
+
+    A drift of ``errors.drift_rate`` toward ``drift_direction`` (radians from east... north = π/2), a Schuler
+    oscillation of ``errors.schuler_amplitude`` (north) and 0.6 of it (east, a quarter period later) starting at
+    ``schuler_phase``, and the accumulated turn perturbations of the strip flown at each time.
+    """
     times = np.asarray(times, float)
-    phase = 2 * np.pi * times / SCHULER_PERIOD
-    # drift along a fixed direction, Schuler oscillation in both axes (quarter-period apart), turn steps
-    error = np.stack([errors.drift_rate * times * 0.8, errors.drift_rate * times * 0.6], 1)
-    rate = np.tile([errors.drift_rate * 0.8, errors.drift_rate * 0.6], (times.size, 1))
+    phase = 2 * np.pi * times / SCHULER_PERIOD + schuler_phase
+    unit = np.array([np.sin(drift_direction), np.cos(drift_direction)])  # (north, east)
+    error = errors.drift_rate * times[:, None] * unit
+    rate = np.tile(errors.drift_rate * unit, (times.size, 1))
     error += errors.schuler_amplitude * np.stack([np.sin(phase), 0.6 * np.cos(phase)], 1)
     rate += errors.schuler_amplitude * 2 * np.pi / SCHULER_PERIOD * np.stack([np.cos(phase), -0.6 * np.sin(phase)],
                                                                               1)
@@ -134,6 +140,7 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
     strip_starts = take_off_time + np.arange(plan.strips) * (plan.strip_duration + plan.turn_duration)
     turn_offsets = np.zeros((plan.strips, 2))
     turn_offsets[1:] = np.cumsum(rng.normal(0.0, errors.turn_perturbation, (plan.strips - 1, 2)), axis=0)
+    drift_direction, schuler_phase = rng.uniform(0.0, 2 * np.pi, 2)  # each flight's INS errs its own way
     true_sweep = plan.sweep_delay + errors.sweep_delay_error
     true_scale = plan.range_scale * (1.0 + errors.range_scale_error)
     records = []
@@ -156,7 +163,7 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
                       plan.record_interval)
         true_position, true_velocity = (np.asarray(a) for a in truth(t))
         north, east = _local_axes(true_position)
-        error, rate = navigation_error(t, errors, turn_offsets, strip_starts)
+        error, rate = navigation_error(t, errors, turn_offsets, strip_starts, drift_direction, schuler_phase)
         noise = rng.normal(0.0, errors.record_noise, (t.size, 2))
         offset = error + noise
         recorded_position = true_position + offset[:, :1] * north + offset[:, 1:] * east
@@ -172,7 +179,7 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         records.append(StripRecord(
             f"S{k + 1:02d}", strip_starts[k], strip_starts[k] + plan.strip_duration, t, recorded_position,
             recorded_velocity, altitudes, mark_x, mark_times, nadir_x, nadir_y, plan.sweep_delay, plan.range_scale,
-            plan.look_side, truth, true_sweep, true_scale))
+            plan.look_side, truth, true_sweep, true_scale, error))
     return records
 
 
