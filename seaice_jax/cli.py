@@ -46,6 +46,27 @@ def _rectify(args) -> int:
     return 0
 
 
+def _simulate(args) -> int:
+    from seaice_jax.io.project import write_project
+    from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
+
+    if args.scenario == "aidjex":
+        scenario = aidjex_scenario(args.seed, plan=FlightPlan(strips=args.strips), features=args.features)
+    else:
+        scenario = prudhoe_scenario(args.seed)
+    print(f"wrote {write_project(scenario, args.out)} (and truth.csv beside it)")
+    return 0
+
+
+def _block(args) -> int:
+    from seaice_jax.radar_block import run_block
+
+    run = run_block(args.project, args.out, args.method)
+    print(run.report)
+    print(f"wrote {len(run.files)} files into {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seaice", description="Sea-ice mapping and drift from radar strips and "
                                      "satellite images (seaice_jax).")
@@ -77,6 +98,21 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument("--check", help="CSV of check points: known positions, not used in the fit")
     rectify.add_argument("--json", help="also write the report as JSON here")
     rectify.set_defaults(run=_rectify)
+
+    simulate = commands.add_parser("simulate", help="write a simulated radar project (TOML + CSV) with its truth")
+    simulate.add_argument("scenario", choices=["aidjex", "prudhoe"])
+    simulate.add_argument("--out", required=True, help="folder to write the project into")
+    simulate.add_argument("--seed", type=int, default=0)
+    simulate.add_argument("--strips", type=int, default=10, help="strips per coverage (aidjex)")
+    simulate.add_argument("--features", type=int, default=600, help="ice features (aidjex)")
+    simulate.set_defaults(run=_simulate)
+
+    block = commands.add_parser("block", help="adjust a radar block project and measure the drift")
+    block.add_argument("project", help="project TOML")
+    block.add_argument("--method", choices=["sequential"], default="sequential",
+                       help="sequential: the 1979 method of source 000")
+    block.add_argument("--out", required=True, help="output folder")
+    block.set_defaults(run=_block)
     return parser
 
 

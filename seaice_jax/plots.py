@@ -125,3 +125,39 @@ def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, l
     ax.invert_yaxis()
     ax.set_title(title, fontsize=9)
     return _save(fig, path)
+
+
+def plot_vectors(path: str | os.PathLike, positions, vectors, title: str, label: str, background=None) -> Path:
+    """Vectors (e.g. drift, error or discrepancy vectors, metres) at map positions (metres), as arrows.
+
+    The arrow scale is printed in the key; ``background``: optional ``(n, 2)`` positions drawn as dots.
+    """
+    positions, vectors = np.asarray(positions, float), np.asarray(vectors, float)
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    if background is not None:
+        ax.scatter(*np.asarray(background).T / 1000.0, s=3, color="0.7", zorder=0)
+    length = float(np.nanpercentile(np.hypot(*vectors.T), 90)) if vectors.size else 1.0
+    arrows = ax.quiver(positions[:, 0] / 1000.0, positions[:, 1] / 1000.0, vectors[:, 0], vectors[:, 1],
+                       angles="xy", scale_units="xy", scale=max(length, 1e-9) / 8.0, width=0.003, color="C0")
+    ax.quiverkey(arrows, 0.85, 1.02, length, f"{length / 1000:.2f} km", labelpos="E", coordinates="axes")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (km)")
+    ax.set_ylabel("y (km)")
+    ax.set_title(f"{title}\n{label}", fontsize=9)
+    return _save(fig, path)
+
+
+def plot_tie_discrepancies(path: str | os.PathLike, before, after) -> Path:
+    """Tie-point discrepancies (across, along track; metres) before and after the internal adjustment (source 000,
+    Fig. 4)."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.8))
+    for ax, values, title in zip(axes, (before, after), ("before internal adjustment", "after"), strict=True):
+        values = np.asarray(values, float) / 1000.0
+        ax.scatter(values[:, 0], values[:, 1], s=8)
+        rms = np.sqrt(np.mean(values**2, axis=0)) if values.size else (np.nan, np.nan)
+        ax.set_title(f"{title}: rms ±{rms[0]:.2f} km across, ±{rms[1]:.2f} km along", fontsize=9)
+        ax.set_xlabel("across-track discrepancy (km)")
+        ax.set_ylabel("along-track discrepancy (km)")
+        ax.axhline(0, color="0.8", lw=0.5)
+        ax.axvline(0, color="0.8", lw=0.5)
+    return _save(fig, path)

@@ -55,3 +55,8 @@ def write_json(path: str | os.PathLike, data) -> Path:
     with atomic_path(path) as temporary:
         temporary.write_text(json.dumps(data, indent=2) + "\n")
     return Path(path)
+
+
+def write_geojson(path: str | os.PathLike, features) -> Path:
+    """Write a GeoJSON FeatureCollection (RFC 7946: coordinates are [longitude, latitude] degrees), atomically."""
+    return write_json(path, {"type": "FeatureCollection", "features": list(features)})

@@ -1,0 +1,68 @@
+import csv
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from seaice_jax.cli import main
+from seaice_jax.io.project import read_project
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sim")
+    assert main(["simulate", "aidjex", "--out", str(folder), "--strips", "3", "--features", "200", "--seed", "2"]) == 0
+    return folder
+
+
+def test_simulate_then_block_writes_the_products(project, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["block", str(project / "project.toml"), "--method", "sequential", "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "general drift" in report
+    names = {p.name for p in out.iterdir()}
+    assert {"adjusted_points.csv", "drift.csv", "drift.geojson", "report.txt", "drift_c1.png",
+            "relative_motion_c1.png", "tie_discrepancies_c1.png"} <= names
+    geojson = json.loads((out / "drift.geojson").read_text())
+    assert geojson["type"] == "FeatureCollection" and geojson["features"]
+    lon, lat = geojson["features"][0]["geometry"]["coordinates"][0]
+    assert 70 < lat < 80 and -160 < lon < -135  # [longitude, latitude] degrees (RFC 7946)
+    with open(out / "drift.csv", newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    dx = np.median([float(r["dx_m"]) for r in rows])
+    assert dx == pytest.approx(-1900.0 * 16, abs=2000.0)  # the simulated 1.9 km/day westward drift
+
+
+def test_project_round_trip_keeps_the_strips(project):
+    loaded = read_project(project / "project.toml")
+    assert [c.name for c in loaded.coverages] == ["day 0", "day 16"]
+    strip = loaded.coverages[0].strips[0]
+    assert strip.record_positions.shape[1] == 3 and strip.mark_x.size == strip.mark_times.size
+    assert set(loaded.coverages[0].control) and len(loaded.point_ids) > 100
+
+
+def corrupt(project, tmp_path, filename, edit):
+    copy = tmp_path / "bad"
+    shutil.copytree(project, copy)
+    path = copy / filename
+    path.write_text(edit(path.read_text()))
+    return copy
+
+
+@pytest.mark.parametrize("filename, edit, message", [
+    ("c1_measurements.csv", lambda t: t.replace("x_mm", "x"), r"c1_measurements.csv, line 1: missing column\(s\) x_mm"),
+    ("c1_S01_marks.csv", lambda t: t.replace(t.splitlines()[3].split(",")[1], "0.5", 1),
+     r"c1_S01_marks.csv, line 4: time mark does not increase"),
+    ("c1_measurements.csv", lambda t: t.replace(",S02,", ",S99,", 1),
+     r"c1_measurements.csv, line \d+: unknown strip 'S99'"),
+    ("c1_measurements.csv", lambda t: t + t.splitlines()[1] + "\n",
+     r"c1_measurements.csv, line \d+: point P\d+ already measured on strip S\d+ \(line 2\)"),
+])
+def test_bad_projects_name_file_and_line_and_write_nothing(project, tmp_path, capsys, filename, edit, message):
+    bad = corrupt(project, tmp_path, filename, edit)
+    out = tmp_path / "out"
+    assert main(["block", str(bad / "project.toml"), "--out", str(out)]) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert not out.exists()
