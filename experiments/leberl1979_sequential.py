@@ -31,7 +31,7 @@ def along_across(vectors, heading_deg):
 
 
 def aidjex_section(seeds, strips):
-    before, after, station_error, relative = [], [], [], []
+    before, after, station_error, relative, absolute = [], [], [], [], []
     for seed in seeds:
         scenario = aidjex_scenario(seed, plan=FlightPlan(strips=strips))
         positions = []
@@ -51,7 +51,7 @@ def aidjex_section(seeds, strips):
         rigid_measured = fit_transform(positions[0][both], positions[1][both], "rigid", 100.0)
         rigid_truth = fit_transform(scenario.coverages[0].truth[both], scenario.coverages[1].truth[both], "rigid")
         relative.append(rms(rigid_measured.residuals - rigid_truth.residuals, axis=None))
-        relative_absolute = rms(measured - truth, axis=None)
+        absolute.append(rms(measured - truth, axis=None))
     b, a = np.concatenate(before), np.concatenate(after)
     stations = rms(np.concatenate(station_error))
     return "\n".join([
@@ -67,7 +67,7 @@ def aidjex_section(seeds, strips):
         f"±{stations[0] / 1000:.2f} / ±{stations[1] / 1000:.2f} km |",
         f"| relative drift of nearby features after removing the general (rigid) drift | better than ±0.2 km | "
         f"±{np.mean(relative) / 1000:.2f} km |",
-        f"| absolute drift error (last block) | 3-4 km per image pair | ±{relative_absolute / 1000:.2f} km |",
+        f"| absolute drift error (no control) | 3-4 km per image pair | ±{np.mean(absolute) / 1000:.2f} km |",
     ])
 
 
@@ -128,8 +128,11 @@ def prudhoe_section(seeds):
         for seed in seeds:
             scenario = prudhoe_scenario(seed)
             for d, coverage in enumerate(scenario.coverages):
-                chosen = np.linspace(0, 19, max(count, 1)).round().astype(int)[:count]
-                control = {int(i): np.array(coverage.control[int(i)][:2]) for i in chosen} or None
+                free = sequential_block(coverage.strips, coverage.measurements, scenario.plane).point_positions(
+                    coverage.measurements, coverage.truth.shape[0])
+                measured = [i for i in range(20) if np.isfinite(free[i]).all()]  # imaged, with a ground solution
+                chosen = [measured[int(k)] for k in np.linspace(0, len(measured) - 1, count).round()] if count else []
+                control = {i: np.array(coverage.control[i][:2]) for i in chosen} or None
                 position = sequential_block(coverage.strips, coverage.measurements, scenario.plane,
                                             control=control).point_positions(coverage.measurements,
                                                                              coverage.truth.shape[0])

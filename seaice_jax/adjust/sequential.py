@@ -224,13 +224,14 @@ def sequential_block(strips, measurements: Measurements, plane, control=None, pi
     adjusted = internal.copy()
     if control:
         ids = np.array(sorted(control))
-        rows = [np.nonzero(measurements.point == p)[0] for p in ids]
-        current = np.array([np.nanmean(internal[r], axis=0) if r.size else [np.nan, np.nan] for r in rows])
+        valid = np.isfinite(internal).all(axis=1)
+        rows = [np.nonzero((measurements.point == p) & valid)[0] for p in ids]
+        current = np.array([internal[r].mean(axis=0) if r.size else [np.nan, np.nan] for r in rows])
         seen = np.isfinite(current).all(axis=1)
         if not seen.any():
-            raise SeaiceError("none of the control points is measured on any strip")
+            raise SeaiceError(f"none of the control points {', '.join(str(p) for p in ids)} has a rectified position "
+                              "(not measured on any strip, or no ground solution)")
         known = np.array([control[p] for p in ids])[seen]
-        valid = np.isfinite(internal).all(axis=1)
         adjusted[valid] = internal[valid] + moving_average_correction(known, known - current[seen], internal[valid],
                                                                       smoothing)
     empty = np.zeros((0, 2))
