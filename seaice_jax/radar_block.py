@@ -95,7 +95,15 @@ def run_block(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
         files.append(write_csv(out / "drift.csv", {name: [r[i] for r in drift_rows] for i, name in
                                                    enumerate(names)}))
         files.append(write_geojson(out / "drift.geojson", drift_features))
-    for k, result in enumerate(results, start=1):
+    for k, (coverage, result) in enumerate(zip(project.coverages, results, strict=True), start=1):
+        internal = result.point_positions(coverage.measurements, n, "internal")
+        known = [p for p in coverage.control if np.isfinite(internal[p]).all()]
+        if known:
+            where = np.array([coverage.control[p][:2] for p in known])
+            files.append(plot_vectors(out / f"control_discrepancies_c{k}.png", where, internal[known] - where,
+                                      f"Radar minus known position at the control points, {coverage.name}",
+                                      "before the external adjustment (source 000, Figs 5 and 6)",
+                                      background=internal[np.isfinite(internal).all(axis=1)]))
         if result.tie_before.size:
             files.append(plot_tie_discrepancies(out / f"tie_discrepancies_c{k}.png", result.tie_before,
                                                 result.tie_after))

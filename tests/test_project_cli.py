@@ -24,7 +24,7 @@ def test_simulate_then_block_writes_the_products(project, tmp_path, capsys):
     assert "general drift" in report
     names = {p.name for p in out.iterdir()}
     assert {"adjusted_points.csv", "drift.csv", "drift.geojson", "report.txt", "drift_c1.png",
-            "relative_motion_c1.png", "tie_discrepancies_c1.png"} <= names
+            "relative_motion_c1.png", "tie_discrepancies_c1.png", "control_discrepancies_c1.png"} <= names
     geojson = json.loads((out / "drift.geojson").read_text())
     assert geojson["type"] == "FeatureCollection" and geojson["features"]
     lon, lat = geojson["features"][0]["geometry"]["coordinates"][0]
