@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, unit_vector
+from seaice_jax.geometry.projections import TangentPlane
 from seaice_jax.geometry.range_doppler import imaging_time_and_range
 from seaice_jax.geometry.trajectory import CircularTrajectory
 from seaice_jax.sensors.navigation import SCHULER_PERIOD
@@ -248,8 +249,6 @@ def _to_ground(plane, xy):
 
 def _block_plane(plan: FlightPlan):
     """Tangent plane at the middle of the block flown by ``plan`` (flight lines step to the look side)."""
-    from seaice_jax.geometry.projections import TangentPlane
-
     start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
     north, east = (np.asarray(a) for a in _local_axes(np.asarray(start)))
     forward = np.cos(plan.heading * _DEG) * north + np.sin(plan.heading * _DEG) * east
