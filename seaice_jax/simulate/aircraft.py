@@ -9,7 +9,8 @@ instruments record is the truth corrupted by the error sources the sources descr
   offsets of the recorded positions (velocities get the offsets' time derivative);
 * the altimeter: Gaussian noise;
 * the radar: true sweep delay and range scale differ from the nominal ones; time marks jitter;
-* image measurements: Gaussian noise in y growing toward near range (resolution ∝ 1/sin θ) and in x.
+* image measurements: Gaussian noise in x and in the slant-range coordinate y; the ground-range error it causes
+  grows toward near range as 1/sin θ (the ground-range resolution), through the geometry.
 
 Features are points on the ice (height 0 on the sphere) imaged through the *true* geometry: the zero-Doppler time
 on the true trajectory gives x (film along-track coordinate, ``film_rate`` mm/s after the strip start), the true
@@ -43,7 +44,7 @@ class ErrorModel:
     sweep_delay_error: float = 0.4  # mm
     range_scale_error: float = 0.005  # relative
     time_mark_jitter: float = 0.05  # s
-    image_noise: float = 0.04  # mm in y at 45° incidence (grows as 1/sin θ), and in x
+    image_noise: float = 0.04  # mm, in x and in y (10 m of slant range at 250 m/mm)
 
     @classmethod
     def none(cls):
@@ -197,11 +198,11 @@ def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> M
         inside = ((times >= strip.start_time) & (times <= strip.end_time) & (ranges >= plan.near_range)
                   & (ranges <= plan.far_range) & on_side)
         for i in np.nonzero(inside)[0]:
-            incidence = np.arccos(plan.altitude / ranges[i])
-            sigma_y = errors.image_noise * np.sin(45 * _DEG) / max(np.sin(incidence), 1e-3)
-            # the film moves uniformly; the time marks on it carry their own jitter
+            # y is slant range on the film: its measurement noise is constant; the ground-range error it causes
+            # grows as 1/sin θ toward near range by the geometry itself. The film moves uniformly; the time marks
+            # on it carry their own jitter.
             x = plan.film_rate * (times[i] - strip.start_time) + rng.normal(0.0, errors.image_noise)
-            y = ranges[i] / strip.true_range_scale - strip.true_sweep_delay + rng.normal(0.0, sigma_y)
+            y = ranges[i] / strip.true_range_scale - strip.true_sweep_delay + rng.normal(0.0, errors.image_noise)
             rows.append((i, j, x, y))
     rows = np.array(rows, float).reshape(-1, 4)
     return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
