@@ -19,7 +19,7 @@ from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.geometry.earth import MEAN_RADIUS  # noqa: E402
-from seaice_jax.geometry.range_doppler import _ground_point  # noqa: E402
+from seaice_jax.geometry.range_doppler import ground_point  # noqa: E402
 from seaice_jax.simulate.scenarios import figure_3_3_image  # noqa: E402
 
 R = MEAN_RADIUS
@@ -101,7 +101,7 @@ def main():
     scipy_points = 100 if args.quick else 300
     rng = np.random.default_rng(0)
 
-    forward_rd = jax.jit(lambda s, v, r: _ground_point(s, v, r, R, 1.0, 0.0, 0.0))
+    forward_rd = jax.jit(lambda s, v, r: ground_point(s, v, r, R, "right", on_failure="nan"))
     rows = []
     s, v, r = radar_inputs(scipy_points, rng)
     scipy_rate = scipy_points / best_time(scipy_ground_point, s, v, r, R, repeats=1)

@@ -77,39 +77,13 @@ def aidjex_section(seeds, strips):
     ])
 
 
-def prudhoe_runs(seeds, filter_window=180.0, weighting="flat"):
-    """Per seed: positions (per day) of the land points with 0 control points, and the scenarios."""
-    from seaice_jax.sensors import strips as strips_module
-
-    out = []
-    for seed in seeds:
-        scenario = prudhoe_scenario(seed)
-        positions = []
-        for coverage in scenario.coverages:
-            result = _sequential_with_filter(strips_module, coverage, scenario.plane, filter_window, weighting)
-            positions.append(result)
-        out.append((scenario, positions))
-    return out
-
-
-def _sequential_with_filter(strips_module, coverage, plane, filter_window, weighting, control=None):
-    original = strips_module.moving_average
-
-    def weighted(times, values, window, order):
-        return original(times, values, window, order, weighting=weighting)
-
-    strips_module.moving_average = weighted
-    try:
-        result = sequential_block(coverage.strips, coverage.measurements, plane, control=control,
-                                  filter_window=filter_window)
-    finally:
-        strips_module.moving_average = original
+def _sequential_with_filter(coverage, plane, filter_window, weighting):
+    result = sequential_block(coverage.strips, coverage.measurements, plane, filter_window=filter_window,
+                              filter_weighting=weighting)
     return result.point_positions(coverage.measurements, coverage.truth.shape[0])
 
 
 def prudhoe_section(seeds):
-    from seaice_jax.sensors import strips as strips_module
-
     rows_table1 = []
     for label, window, weighting in (("No filter", None, "flat"), ("Filter, weighting (distance⁻³)", 180.0,
                                                                     "inverse_cube"),
@@ -117,7 +91,7 @@ def prudhoe_section(seeds):
         day_errors, drift_errors = [[], []], []
         for seed in seeds:
             scenario = prudhoe_scenario(seed)
-            estimated = [_sequential_with_filter(strips_module, c, scenario.plane, window, weighting)
+            estimated = [_sequential_with_filter(c, scenario.plane, window, weighting)
                          for c in scenario.coverages]
             for d, (coverage, position) in enumerate(zip(scenario.coverages, estimated, strict=True)):
                 ok = np.isfinite(position).all(axis=1)

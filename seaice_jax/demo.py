@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.adjust.orbit_fit import ControlPoints, fit_scan_model, position_uncertainty
+from seaice_jax.geometry.earth import latitude_longitude
 from seaice_jax.geometry.projections import TangentPlane, nsidc_polar_stereographic
 from seaice_jax.geometry.range_doppler import ground_point, imaging_time_and_range
 from seaice_jax.io.files import atomic_path, write_csv, write_json
@@ -62,8 +63,7 @@ def run_demo(out_dir: str | os.PathLike = "seaice-demo") -> DemoResult:
     time_grid, range_grid = np.meshgrid(strip.times, strip.slant_ranges, indexing="ij")
     time_error = float(np.max(np.abs(np.asarray(time_back) - time_grid)))
     range_error = float(np.max(np.abs(np.asarray(range_back) - range_grid)))
-    radar_lat = np.arctan2(np.asarray(points[..., 2]), np.hypot(np.asarray(points[..., 0]), np.asarray(points[..., 1])))
-    radar_lon = np.arctan2(np.asarray(points[..., 1]), np.asarray(points[..., 0]))
+    radar_lat, radar_lon = (np.asarray(a) for a in latitude_longitude(points))
     centre = TangentPlane(float(np.mean(radar_lat)), float(np.mean(radar_lon)))
     radar_x, radar_y = (np.asarray(a) for a in centre.forward(radar_lat, radar_lon))
     files.append(write_csv(out_dir / "radar_strip.csv", {

@@ -17,13 +17,13 @@ from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares, make_
 from seaice_jax.adjust.orbit_fit import (
     FREE_PARAMETERS,
     ControlPoints,
-    OrbitFit,
     fit_scan_model,
     free_mask,
     orbit_solver,
     propagate_position_sigma,
 )
 from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import wrap_angle as _wrap
 from seaice_jax.geometry.scan import Orbit, ScanModel
 
 
@@ -68,10 +68,6 @@ class JointFit:
     point_latitude: np.ndarray
     point_longitude: np.ndarray
     adjustment: Adjustment
-
-
-def _wrap(angle):
-    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
 
 
 def _secondary_as_control(image: ImageObservations, positions: dict) -> ControlPoints | None:
@@ -182,11 +178,6 @@ def joint_fit(images: list[ImageObservations]) -> JointFit:
     return JointFit(tuple(adjustment.parameters["images"]), point_ids, points[:, 0], points[:, 1], adjustment)
 
 
-def image_fit(joint: JointFit, images: list[ImageObservations], j: int) -> OrbitFit:
-    """Image ``j`` of a joint fit as an :class:`OrbitFit` on its primary points (for reports)."""
-    return OrbitFit(joint.models[j], images[j].primary, "gauss-newton (joint)", int(joint.adjustment.steps))
-
-
 @dataclass(frozen=True)
 class MonteCarloComparison:
     """Joint adjustment against the 1985 sequential practice for the second image (Monte Carlo, same noise).
@@ -233,7 +224,7 @@ def monte_carlo_comparison(images, truths, runs, rng, pixel, scan) -> MonteCarlo
     def scatter(models):
         lat, lon = jax.vmap(lambda m: m.forward(pixel, scan))(models)
         north = (np.asarray(lat) - truth_lat) * radius
-        east = np.angle(np.exp(1j * (np.asarray(lon) - truth_lon))) * radius * np.cos(truth_lat)
+        east = np.asarray(_wrap(np.asarray(lon) - truth_lon[None, :])) * radius * np.cos(truth_lat)
         return np.sqrt(np.mean(north**2 + east**2, axis=0))
 
     # 1985: the first image from its primaries; the secondary points' positions from it (with its pointing

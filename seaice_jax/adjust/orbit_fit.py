@@ -26,6 +26,7 @@ from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_square
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
+from seaice_jax.geometry.earth import wrap_angle as _wrap
 from seaice_jax.geometry.scan import Orbit, ScanModel, orbit_coordinates
 
 FREE_PARAMETERS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
@@ -103,10 +104,6 @@ def _predict(model: ScanModel, args):
     pixel, scan, reference_longitude = args
     latitude, longitude = model.forward(pixel, scan)
     return {"latitude": latitude, "longitude": reference_longitude + _wrap(longitude - reference_longitude)}
-
-
-def _wrap(angle):
-    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
 
 
 def _observations(control: ControlPoints, radius):

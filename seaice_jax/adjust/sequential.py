@@ -168,7 +168,7 @@ def moving_average_correction(control_positions, discrepancies, positions, smoot
 
 def sequential_block(strips, measurements: Measurements, plane, control=None, pieces: int = 4,
                      filter_window: float | None = 180.0, calibrate: bool = True,
-                     smoothing: float = 10_000.0) -> SequentialResult:
+                     smoothing: float = 10_000.0, filter_weighting: str = "flat") -> SequentialResult:
     """The sequential method of source 000 on a block of strips.
 
     Args:
@@ -179,6 +179,7 @@ def sequential_block(strips, measurements: Measurements, plane, control=None, pi
         control: ``{point index: (x, y)}`` known map positions of control points (optional).
         pieces: cubic pieces per strip for the internal adjustment (fewer where the tie points are sparse).
         filter_window: s of the navigation moving average (``None``: no filter).
+        filter_weighting: ``"flat"`` or ``"inverse_cube"`` weights of the moving average (source 002, Table 1).
         calibrate: do the nadir calibration (else use the nominal constants).
         smoothing: m, of the external moving average.
     """
@@ -189,7 +190,8 @@ def sequential_block(strips, measurements: Measurements, plane, control=None, pi
             calibrations.append(nadir_calibration(strip.nadir_y, altitude, strip.sweep_delay, strip.range_scale))
     sweep = [c.sweep_delay for c in calibrations] if calibrate else None
     scale = [c.range_scale for c in calibrations] if calibrate else None
-    points = rectify(strips, measurements, filter_window, sweep_delay=sweep, range_scale=scale)
+    points = rectify(strips, measurements, filter_window, sweep_delay=sweep, range_scale=scale,
+                     filter_weighting=filter_weighting)
     lat, lon = latitude_longitude(points)
     rectified = np.stack([np.asarray(a) for a in plane.forward(lat, lon)], axis=1)
 

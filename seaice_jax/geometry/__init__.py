@@ -15,6 +15,7 @@ from seaice_jax.geometry.earth import (
     latitude_longitude,
     sphere_to_cartesian,
     unit_vector,
+    wrap_angle,
 )
 from seaice_jax.geometry.projections import (
     ImageGrid,
@@ -37,7 +38,7 @@ from seaice_jax.geometry.trajectory import CircularTrajectory
 __all__ = [
     "EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
     "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic", "geodetic_to_ecef",
-    "great_circle_distance", "latitude_longitude", "sphere_to_cartesian", "unit_vector",
+    "great_circle_distance", "latitude_longitude", "sphere_to_cartesian", "unit_vector", "wrap_angle",
     "ImageGrid", "LambertConformalConic", "PolarStereographic", "TangentPlane", "nsidc_polar_stereographic",
     "LEFT", "RIGHT", "doppler_residual", "ground_point", "imaging_time_and_range", "incidence_angle",
     "SATELLITES", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit", "CircularTrajectory",

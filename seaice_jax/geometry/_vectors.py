@@ -1,4 +1,11 @@
-"""Small vector helpers shared by the geometry modules (explicit broadcasting, no rank promotion)."""
+"""Small helpers shared by the geometry modules (explicit broadcasting, no rank promotion)."""
+
+import jax.numpy as jnp
+
+
+def as_float(value):
+    """``value`` as a float64 JAX array (the converter of the modules' array fields)."""
+    return jnp.asarray(value, float)
 
 
 def along(scalar, vector):

@@ -132,6 +132,11 @@ def ecef_to_geodetic(position, a=WGS84_SEMI_MAJOR_AXIS, f=WGS84_FLATTENING, iter
     return latitude, longitude, height
 
 
+def wrap_angle(angle):
+    """Angle (radians) wrapped into (-π, π]."""
+    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+
+
 def great_circle_distance(lat1, lon1, lat2, lon2, radius=MEAN_RADIUS):
     """Great-circle distance (m) on the sphere between points given in radians (haversine-free, atan2 form)."""
     u1 = unit_vector(lat1, lon1)

@@ -18,15 +18,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from seaice_jax.geometry._vectors import along
+from seaice_jax.geometry._vectors import as_float as _as_float
 from seaice_jax.geometry.earth import MEAN_RADIUS, WGS84_FLATTENING, WGS84_SEMI_MAJOR_AXIS, unit_vector
-
-
-def _as_float(value):
-    return jnp.asarray(value, float)
-
-
-def _wrap(angle):
-    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
+from seaice_jax.geometry.earth import wrap_angle as _wrap
 
 
 class TangentPlane(eqx.Module):

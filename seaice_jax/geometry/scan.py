@@ -24,13 +24,13 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from seaice_jax.geometry._checks import is_traced, raise_where_nan
+from seaice_jax.geometry._vectors import as_float as _as_float
 from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, unit_vector
+from seaice_jax.geometry.earth import wrap_angle as _wrap
 
 Direction = Literal["south", "north"]
 
 
-def _as_float(value):
-    return jnp.asarray(value, float)
 
 _DIRECTION_SIGN = {"south": 1.0, "north": -1.0}
 
@@ -245,11 +245,6 @@ def orbit_coordinates(orbit: Orbit, ascending_node, latitude, longitude, orbital
         eta = orbital_angle_reference + _wrap(jnp.arctan2(in_plane, gx) - orbital_angle_reference)
     beta = jnp.arcsin(jnp.clip(gy * jnp.sin(inc) - gz * jnp.cos(inc), -1.0, 1.0))
     return eta, beta
-
-
-def _wrap(angle):
-    """Angle wrapped into (-π, π]."""
-    return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
 
 
 class SatelliteOrbit(eqx.Module):

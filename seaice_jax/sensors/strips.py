@@ -66,7 +66,7 @@ class Measurements:
 
 
 def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
-            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS):
+            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS, filter_weighting: str = "flat"):
     """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
 
     Time by eq. A1 from the time marks, slant range by eq. A2 (with per-strip ``sweep_delay``/``range_scale`` if
@@ -81,7 +81,8 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
             continue
         positions, velocities = strip.record_positions, strip.record_velocities
         if filter_window:
-            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order)
+            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order,
+                                                   filter_weighting)
         navigation = NavigationSpline(strip.record_times, positions, velocities)
         t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
         c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
