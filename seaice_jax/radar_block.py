@@ -53,10 +53,11 @@ def run_block(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
     drift_rows, drift_features, drift_plots = [], [], []
     for k in range(1, len(project.coverages)):
         first, second = positions[k - 1], positions[k]
-        both = np.nonzero(np.isfinite(first).all(axis=1) & np.isfinite(second).all(axis=1))[0]
+        homologous = np.isin(np.array(project.point_kinds), ("drift", "control"))
+        both = np.nonzero(homologous & np.isfinite(first).all(axis=1) & np.isfinite(second).all(axis=1))[0]
         if both.size < 3:
             lines.append(f"  drift {project.coverages[k - 1].name} -> {project.coverages[k].name}: only {both.size} "
-                         "common points, no drift computed")
+                         "drift or control points measured in both, no drift computed")
             continue
         interval = project.coverages[k].epoch - project.coverages[k - 1].epoch
         drift = drift_vectors(first[both], second[both], interval if interval > 0 else 1.0)

@@ -123,6 +123,23 @@ def test_aidjex_scenario_has_overlapping_strips_drift_and_stations():
     assert scenario.coverages[1].epoch == 16 * 86400.0
 
 
+def test_floes_turn_rigidly_about_their_centres():
+    """Within one floe the motion left after the block's affine drift is a rigid rotation by that floe's angle."""
+    from seaice_jax.drift.kinematics import fit_transform
+    from seaice_jax.simulate.aircraft import aidjex_scenario
+
+    scenario = aidjex_scenario(seed=5, plan=FlightPlan(strips=4), features=400, floe_rotation=2.0)
+    first, second = (c.truth for c in scenario.coverages)
+    matrix = np.array([[1.1, 0.03], [0.0, 0.95]])
+    sizes = np.bincount(scenario.floe)
+    assert sizes.size > 5 and np.std(np.degrees(scenario.floe_rotation)) > 0.5
+    for floe in np.nonzero(sizes >= 4)[0][:5]:
+        on = scenario.floe == floe
+        fit = fit_transform(first[on] @ matrix.T, second[on], "rigid", sigma=1.0)
+        assert float(fit.parameters["rotation"]) == pytest.approx(scenario.floe_rotation[floe], abs=1e-9)
+        assert fit.rms < 1e-6
+
+
 def test_prudhoe_scenario_single_control_point_removes_most_of_the_error():
     """Source 002, Table 2: one ground control point reduces km-level errors to a few hundred metres."""
     from seaice_jax.adjust.sequential import sequential_block

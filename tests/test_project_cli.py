@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from seaice_jax.cli import main
-from seaice_jax.io.project import read_project
+from seaice_jax.io.project import read_project, write_project
+from seaice_jax.sensors.strips import rectify
+from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +45,29 @@ def test_project_round_trip_keeps_the_strips(project):
     assert set(loaded.coverages[0].control) and len(loaded.point_ids) > 100
 
 
+def test_comparator_coordinates_and_kinds_round_trip(tmp_path):
+    """A project written with films placed on the comparator at an angle reads back to the same image
+    coordinates: rectifying the read project gives the simulated strips' ground points to < 1 mm."""
+    scenario = aidjex_scenario(seed=4, plan=FlightPlan(strips=2), features=60)
+    write_project(scenario, tmp_path)
+    loaded = read_project(tmp_path / "project.toml")
+    with open(tmp_path / "c1_measurements.csv", newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    assert {"drift", "control", "nadir"} <= {r["kind"] for r in rows}
+    coverage, original = loaded.coverages[0], scenario.coverages[0]
+    raw = np.array([[float(r["x_mm"]), float(r["y_mm"])] for r in rows if r["kind"] != "nadir"])
+    assert np.abs(raw - np.stack([original.measurements.x, original.measurements.y], 1)).max() > 1.0  # not image
+    np.testing.assert_allclose(coverage.measurements.y, original.measurements.y, atol=1e-9)
+    for read, simulated in zip(coverage.strips, original.strips, strict=True):
+        np.testing.assert_allclose(read.nadir_y, simulated.nadir_y, atol=1e-9)
+        np.testing.assert_allclose(np.diff(read.mark_x), np.diff(simulated.mark_x), atol=1e-9)
+    ours = rectify(coverage.strips, coverage.measurements)
+    theirs = rectify(original.strips, original.measurements)
+    assert np.nanmax(np.linalg.norm(ours - theirs, axis=1)) < 1e-3
+    kinds = dict(zip(loaded.point_ids, loaded.point_kinds, strict=True))
+    assert [kinds[f"P{i:04d}"] for i in (1, 2, 3)] == ["control"] * 3
+
+
 def corrupt(project, tmp_path, filename, edit):
     copy = tmp_path / "bad"
     shutil.copytree(project, copy)
@@ -53,8 +78,15 @@ def corrupt(project, tmp_path, filename, edit):
 
 @pytest.mark.parametrize("filename, edit, message", [
     ("c1_measurements.csv", lambda t: t.replace("x_mm", "x"), r"c1_measurements.csv, line 1: missing column\(s\) x_mm"),
-    ("c1_S01_marks.csv", lambda t: t.replace(t.splitlines()[3].split(",")[1], "0.5", 1),
+    ("c1_S01_marks.csv", lambda t: t.replace(t.splitlines()[3].split(",")[2], "0.5", 1),
      r"c1_S01_marks.csv, line 4: time mark does not increase"),
+    ("c1_S01_marks.csv", lambda t: t.replace(t.splitlines()[3].split(",")[0], "-40", 1),
+     r"c1_S01_marks.csv, line 4: time mark does not increase"),
+    ("c1_measurements.csv", lambda t: t.replace(",tie,", ",tye,", 1),
+     r"c1_measurements.csv, line \d+: point P\d+: kind 'tye' is not one of tie, drift, control, nadir"),
+    ("c1_measurements.csv", lambda t: t.replace(",drift,", ",tie,", 1),
+     r"c2_measurements.csv, line \d+: point P\d+ is 'drift' here but 'tie' at .*c1_measurements.csv, line 4"),
+    ("project.toml", lambda t: t.replace("far_range_mm", "far_range", 1), r"strip 'S01': missing far_range_mm"),
     ("c1_measurements.csv", lambda t: t.replace(",S02,", ",S99,", 1),
      r"c1_measurements.csv, line \d+: unknown strip 'S99'"),
     ("c1_measurements.csv", lambda t: t + t.splitlines()[1] + "\n",

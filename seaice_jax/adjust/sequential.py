@@ -23,7 +23,7 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import latitude_longitude
 from seaice_jax.sensors.slar import NadirCalibration, nadir_calibration
-from seaice_jax.sensors.strips import Measurements, rectify
+from seaice_jax.sensors.strips import Measurements, nadir_altitudes, rectify
 
 
 def piece_coefficients(value_start, slope_start, value_end, slope_end, length):
@@ -185,9 +185,9 @@ def sequential_block(strips, measurements: Measurements, plane, control=None, pi
     """
     calibrations = []
     for strip in strips:
-        altitude = np.interp(strip.mark_times, strip.record_times, strip.record_altitudes)
         if calibrate:
-            calibrations.append(nadir_calibration(strip.nadir_y, altitude, strip.sweep_delay, strip.range_scale))
+            calibrations.append(nadir_calibration(strip.nadir_y, nadir_altitudes(strip), strip.sweep_delay,
+                                                  strip.range_scale))
     sweep = [c.sweep_delay for c in calibrations] if calibrate else None
     scale = [c.range_scale for c in calibrations] if calibrate else None
     points = rectify(strips, measurements, filter_window, sweep_delay=sweep, range_scale=scale,

@@ -13,6 +13,7 @@ from seaice_jax.geometry.earth import (
     geodetic_to_ecef,
     great_circle_distance,
     latitude_longitude,
+    north_east,
     sphere_to_cartesian,
     unit_vector,
     wrap_angle,
@@ -38,7 +39,7 @@ from seaice_jax.geometry.trajectory import CircularTrajectory
 __all__ = [
     "EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
     "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic", "geodetic_to_ecef",
-    "great_circle_distance", "latitude_longitude", "sphere_to_cartesian", "unit_vector", "wrap_angle",
+    "great_circle_distance", "latitude_longitude", "north_east", "sphere_to_cartesian", "unit_vector", "wrap_angle",
     "ImageGrid", "LambertConformalConic", "PolarStereographic", "TangentPlane", "nsidc_polar_stereographic",
     "LEFT", "RIGHT", "doppler_residual", "ground_point", "imaging_time_and_range", "incidence_angle",
     "SATELLITES", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit", "CircularTrajectory",

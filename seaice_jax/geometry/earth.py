@@ -56,6 +56,14 @@ def latitude_longitude(vector):
     return jnp.arctan2(z, jnp.hypot(x, y)), jnp.arctan2(y, x)
 
 
+def north_east(position):
+    """Local north and east unit vectors ``(..., 3)`` at geocentric positions ``(..., 3)`` (any length)."""
+    latitude, longitude = latitude_longitude(position)
+    east = jnp.stack([-jnp.sin(longitude), jnp.cos(longitude), jnp.zeros_like(longitude)], axis=-1)
+    north = jnp.stack([-jnp.sin(latitude) * jnp.cos(longitude), -jnp.sin(latitude) * jnp.sin(longitude),
+                       jnp.cos(latitude)], axis=-1)
+    return north, east
+
 def sphere_to_cartesian(latitude, longitude, height=0.0, radius=MEAN_RADIUS):
     """Geocentric position (m) of a point at ``height`` above the sphere of ``radius``.
 

@@ -8,18 +8,26 @@ map_centre_deg = [74.8, -147.5]      # tangent-plane map centre (latitude, longi
 [[coverage]]
 name = "day 0"
 epoch_s = 0.0
-measurements = "c1_measurements.csv"  # point,strip,x_mm,y_mm
+measurements = "c1_measurements.csv"  # point,strip,kind,x_mm,y_mm   (comparator x', y')
 control = "c1_control.csv"            # point,lat,lon,sigma_m   (optional)
 
 [[coverage.strip]]
 name = "S01"
 navigation = "c1_S01_navigation.csv"  # time_s,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,altitude_m (ECEF)
-time_marks = "c1_S01_marks.csv"       # x_mm,time_s
-nadir = "c1_S01_nadir.csv"            # x_mm,y_mm
+time_marks = "c1_S01_marks.csv"       # x_mm,y_mm,time_s   (comparator x', y' of each time mark)
+range_reference_mm = [[20.0, 35.0], [470.0, 38.9]]  # two comparator points on the range reference line
+far_range_mm = [19.6, 85.0]           # any comparator point at larger range than the reference line
 sweep_delay_mm = 10.0
 range_scale_m_per_mm = 250.0
 look_side = "right"
 ```
+
+Measurements are comparator coordinates x', y' on the film; each strip's time-mark line and range reference line
+define its image frame (:class:`~seaice_jax.sensors.slar.ImageFrame`): x along the marks in the direction of
+increasing time, y from the range reference line toward far range. ``kind`` is the point's role: ``tie`` (ties
+strips of one coverage), ``drift`` (a feature measured in more than one coverage; it may tie strips too),
+``control`` (known position, listed in the control file) or ``nadir`` (a nadir return, for the calibration of
+sweep delay and range scale against the altimeter; one strip only).
 
 Every error names the file and line; reading never writes anything.
 """
@@ -27,7 +35,7 @@ Every error names the file and line; reading never writes anything.
 import csv
 import os
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +43,12 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import TangentPlane
 from seaice_jax.io.files import atomic_path, write_csv
-from seaice_jax.sensors.slar import check_time_marks
+from seaice_jax.sensors.slar import ImageFrame, check_time_marks
 from seaice_jax.sensors.strips import Measurements, StripRecord
 
 NAVIGATION_COLUMNS = ("time_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "altitude_m")
+KINDS = ("tie", "drift", "control", "nadir")
+_MARK_OFFSET = -3.0  # mm: where the simulated films carry their time marks, beside the range reference line
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,7 @@ class Project:
     name: str
     plane: TangentPlane
     point_ids: tuple[str, ...]
+    point_kinds: tuple[str, ...]
     coverages: tuple[ProjectCoverage, ...]
 
 
@@ -90,6 +101,47 @@ def _numbers(path, columns):
     return np.array([[row[c] for c in columns] for _, row in rows], float).reshape(-1, len(columns)), rows
 
 
+def _comparator_point(value, label, key, count=1):
+    """A TOML list of ``count`` comparator points [x', y'] as an ``(count, 2)`` array, or an error naming it."""
+    points = np.asarray(value if count > 1 else [value], dtype=object)
+    if points.shape != (count, 2) or not all(isinstance(v, int | float) for v in points.ravel()):
+        shape = "[[x', y'], [x', y']]" if count > 1 else "[x', y']"
+        raise SeaiceError(f"{label}: {key} must be {shape} in mm, got {value!r}")
+    return points.astype(float)
+
+
+def _read_strip(strip, s, base, label):
+    """One ``[[coverage.strip]]`` table -> (name, frame, StripRecord without nadir returns)."""
+    name = strip.get("name", f"strip {s + 1}")
+    where = f"{label} strip {name!r}"
+    for key in ("navigation", "time_marks", "range_reference_mm", "far_range_mm", "sweep_delay_mm",
+                "range_scale_m_per_mm"):
+        if key not in strip:
+            raise SeaiceError(f"{where}: missing {key}")
+    navigation, _ = _numbers(base / strip["navigation"], NAVIGATION_COLUMNS)
+    marks_path = base / strip["time_marks"]
+    marks, mark_rows = _numbers(marks_path, ("x_mm", "y_mm", "time_s"))
+    if marks.shape[0] < 2:
+        raise SeaiceError(f"{marks_path}: need at least two time marks")
+    reference = _comparator_point(strip["range_reference_mm"], where, "range_reference_mm", 2)
+    far = _comparator_point(strip["far_range_mm"], where, "far_range_mm")[0]
+    frame = ImageFrame.from_lines(marks[:, :2], reference, far)
+    mark_x = np.asarray(frame.to_image(marks[:, 0], marks[:, 1])[0])
+    for k in range(1, marks.shape[0]):
+        if mark_x[k] <= mark_x[k - 1] or marks[k, 2] <= marks[k - 1, 2]:
+            raise SeaiceError(f"{marks_path}, line {mark_rows[k][0]}: time mark does not increase (x {mark_x[k]:.3f} "
+                              f"mm, t {marks[k, 2]} s after x {mark_x[k - 1]:.3f} mm, t {marks[k - 1, 2]} s along "
+                              "the time-mark line)")
+    check_time_marks(mark_x, marks[:, 2], str(marks_path))
+    look_side = strip.get("look_side", "right")
+    if look_side not in ("right", "left"):
+        raise SeaiceError(f"{where}: look_side must be 'right' or 'left'")
+    record = StripRecord(name, float(marks[0, 2]), float(marks[-1, 2]), navigation[:, 0], navigation[:, 1:4],
+                         navigation[:, 4:7], navigation[:, 7], mark_x, marks[:, 2], np.zeros(0), np.zeros(0),
+                         float(strip["sweep_delay_mm"]), float(strip["range_scale_m_per_mm"]), look_side)
+    return name, frame, record
+
+
 def read_project(path: str | os.PathLike) -> Project:
     """Read and validate a project (see the module docstring)."""
     path = Path(path)
@@ -106,49 +158,54 @@ def read_project(path: str | os.PathLike) -> Project:
         raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude]")
     plane = TangentPlane(np.radians(centre[0]), np.radians(centre[1]))
     ids: dict[str, int] = {}
+    kinds: dict[str, tuple[str, str]] = {}  # point -> (kind, where it was first given)
     coverages = []
     for c, cov in enumerate(config.get("coverage", [])):
         label = f"{path}: coverage {cov.get('name', c + 1)!r}"
-        strips, strip_index = [], {}
+        strips, frames, strip_index = [], [], {}
         for s, strip in enumerate(cov.get("strip", [])):
-            name = strip.get("name", f"strip {s + 1}")
-            for key in ("navigation", "time_marks", "nadir", "sweep_delay_mm", "range_scale_m_per_mm"):
-                if key not in strip:
-                    raise SeaiceError(f"{label} strip {name!r}: missing {key}")
-            navigation, _ = _numbers(base / strip["navigation"], NAVIGATION_COLUMNS)
-            marks, mark_rows = _numbers(base / strip["time_marks"], ("x_mm", "time_s"))
-            for k in range(1, marks.shape[0]):
-                if marks[k, 0] <= marks[k - 1, 0] or marks[k, 1] <= marks[k - 1, 1]:
-                    raise SeaiceError(f"{base / strip['time_marks']}, line {mark_rows[k][0]}: time mark does not "
-                                      f"increase (x {marks[k, 0]} mm, t {marks[k, 1]} s after x "
-                                      f"{marks[k - 1, 0]} mm, t {marks[k - 1, 1]} s)")
-            check_time_marks(marks[:, 0], marks[:, 1], str(base / strip["time_marks"]))
-            nadir, _ = _numbers(base / strip["nadir"], ("x_mm", "y_mm"))
-            look_side = strip.get("look_side", "right")
-            if look_side not in ("right", "left"):
-                raise SeaiceError(f"{label} strip {name!r}: look_side must be 'right' or 'left'")
+            name, frame, record = _read_strip(strip, s, base, label)
             strip_index[name] = s
-            strips.append(StripRecord(name, float(marks[0, 1]), float(marks[-1, 1]), navigation[:, 0],
-                                      navigation[:, 1:4], navigation[:, 4:7], navigation[:, 7], marks[:, 0],
-                                      marks[:, 1], nadir[:, 0], nadir[:, 1], float(strip["sweep_delay_mm"]),
-                                      float(strip["range_scale_m_per_mm"]), look_side))
+            strips.append(record)
+            frames.append(frame)
         if "measurements" not in cov:
             raise SeaiceError(f"{label}: missing measurements")
         measurement_path = base / cov["measurements"]
-        point, strip_of, x, y, seen = [], [], [], [], {}
-        for line, row in _read_table(measurement_path, ("point", "strip", "x_mm", "y_mm"), ("x_mm", "y_mm")):
+        point, strip_of, x, y, seen, nadir_lines = [], [], [], [], {}, {}
+        nadir = {s: [] for s in range(len(strips))}
+        for line, row in _read_table(measurement_path, ("point", "strip", "kind", "x_mm", "y_mm"), ("x_mm", "y_mm")):
+            where = f"{measurement_path}, line {line}"
             if row["strip"] not in strip_index:
-                raise SeaiceError(f"{measurement_path}, line {line}: unknown strip {row['strip']!r} (coverage has "
+                raise SeaiceError(f"{where}: unknown strip {row['strip']!r} (coverage has "
                                   f"{', '.join(strip_index) or 'no strips'})")
+            if row["kind"] not in KINDS:
+                raise SeaiceError(f"{where}: point {row['point']}: kind {row['kind']!r} is not one of "
+                                  f"{', '.join(KINDS)}")
+            first = kinds.setdefault(row["point"], (row["kind"], where))
+            if first[0] != row["kind"]:
+                raise SeaiceError(f"{where}: point {row['point']} is {row['kind']!r} here but {first[0]!r} at "
+                                  f"{first[1]}")
             key = (row["point"], row["strip"])
             if key in seen:
-                raise SeaiceError(f"{measurement_path}, line {line}: point {row['point']} already measured on strip "
-                                  f"{row['strip']} (line {seen[key]})")
+                raise SeaiceError(f"{where}: point {row['point']} already measured on strip {row['strip']} "
+                                  f"(line {seen[key]})")
+            if row["kind"] == "nadir":
+                if row["point"] in nadir_lines:
+                    raise SeaiceError(f"{where}: nadir return {row['point']} already measured (line "
+                                      f"{nadir_lines[row['point']]}); a nadir return belongs to one strip")
+                nadir_lines[row["point"]] = line
             seen[key] = line
+            j = strip_index[row["strip"]]
+            image_x, image_y = (float(v) for v in frames[j].to_image(row["x_mm"], row["y_mm"]))
+            if row["kind"] == "nadir":
+                nadir[j].append((image_x, image_y))
+                continue
             point.append(ids.setdefault(row["point"], len(ids)))
-            strip_of.append(strip_index[row["strip"]])
-            x.append(row["x_mm"])
-            y.append(row["y_mm"])
+            strip_of.append(j)
+            x.append(image_x)
+            y.append(image_y)
+        strips = [replace(strip, nadir_x=np.array([v[0] for v in nadir[j]]), nadir_y=np.array([v[1] for v in nadir[j]]))
+                  for j, strip in enumerate(strips)]
         control = {}
         if cov.get("control"):
             control_path = base / cov["control"]
@@ -156,6 +213,9 @@ def read_project(path: str | os.PathLike) -> Project:
                 if abs(row["lat"]) > 90 or not row["sigma_m"] > 0:
                     raise SeaiceError(f"{control_path}, line {line}: point {row['point']}: latitude within ±90° and "
                                       "sigma_m > 0 required")
+                if kinds.get(row["point"], ("control",))[0] != "control":
+                    raise SeaiceError(f"{control_path}, line {line}: point {row['point']} is a control point here "
+                                      f"but {kinds[row['point']][0]!r} at {kinds[row['point']][1]}")
                 cx, cy = plane.forward(np.radians(row["lat"]), np.radians(row["lon"]))
                 control[ids.setdefault(row["point"], len(ids))] = (float(cx), float(cy), row["sigma_m"])
         coverages.append(ProjectCoverage(cov.get("name", f"coverage {c + 1}"), float(cov.get("epoch_s", 0.0)), strips,
@@ -163,22 +223,49 @@ def read_project(path: str | os.PathLike) -> Project:
                                                       np.array(y)), control))
     if not coverages:
         raise SeaiceError(f"{path}: no [[coverage]] tables")
-    return Project(project.get("name", path.stem), plane, tuple(ids), tuple(coverages))
+    point_kinds = tuple(kinds.get(p, ("control",))[0] for p in ids)
+    return Project(project.get("name", path.stem), plane, tuple(ids), point_kinds, tuple(coverages))
+
+
+def _point_kinds(scenario):
+    """The project kind of every simulated feature: control, drift (seen in more than one coverage) or tie."""
+    control = set().union(*(c.control for c in scenario.coverages))
+    seen = np.zeros(len(scenario.kinds), int)
+    for coverage in scenario.coverages:
+        seen[np.unique(coverage.measurements.point)] += 1
+    return ["control" if p in control else "drift" if seen[p] > 1 else "tie" for p in range(len(scenario.kinds))]
 
 
 def write_project(scenario, out_dir: str | os.PathLike) -> Path:
-    """Write a simulated :class:`~seaice_jax.simulate.aircraft.Scenario` as a project (plus ``truth.csv``)."""
+    """Write a simulated :class:`~seaice_jax.simulate.aircraft.Scenario` as a project (plus ``truth.csv``).
+
+    Each film is laid on the comparator turned by a small angle and shifted, as an operator would place it, so
+    the comparator coordinates x', y' differ from the image coordinates; the time marks are printed 3 mm beside
+    the range reference line.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ids = [f"P{i + 1:04d}" for i in range(len(scenario.kinds))]
+    kinds = _point_kinds(scenario)
     centre = [float(np.degrees(scenario.plane.latitude)), float(np.degrees(scenario.plane.longitude))]
     lines = ["[project]", f'name = "{scenario.name}"', f"map_centre_deg = [{centre[0]!r}, {centre[1]!r}]", ""]
     truth_rows = {"point": [], "coverage": [], "kind": [], "lat": [], "lon": [], "x_m": [], "y_m": []}
     for c, coverage in enumerate(scenario.coverages, start=1):
         m = coverage.measurements
-        write_csv(out / f"c{c}_measurements.csv", {"point": [ids[p] for p in m.point],
-                                                    "strip": [coverage.strips[s].name for s in m.strip],
-                                                    "x_mm": m.x, "y_mm": m.y})
+        frames = [ImageFrame.placed(np.radians(0.4 + 0.15 * j), (20.0 + j, 35.0 - 0.5 * j))
+                  for j in range(len(coverage.strips))]
+        columns = {"point": [], "strip": [], "kind": [], "x_mm": [], "y_mm": []}
+        for j, strip in enumerate(coverage.strips):
+            rows = np.nonzero(m.strip == j)[0]
+            nadir_ids = [f"N{c}-{strip.name}-{k + 1:03d}" for k in range(strip.nadir_x.size)]
+            columns["point"] += [ids[p] for p in m.point[rows]] + nadir_ids
+            columns["strip"] += [strip.name] * (rows.size + len(nadir_ids))
+            columns["kind"] += [kinds[p] for p in m.point[rows]] + ["nadir"] * len(nadir_ids)
+            xc, yc = frames[j].to_comparator(np.concatenate([m.x[rows], strip.nadir_x]),
+                                             np.concatenate([m.y[rows], strip.nadir_y]))
+            columns["x_mm"] += list(np.asarray(xc))
+            columns["y_mm"] += list(np.asarray(yc))
+        write_csv(out / f"c{c}_measurements.csv", columns, float_format="%.12g")
         lat_c, lon_c = [], []
         for point in coverage.control:
             lat, lon = scenario.plane.inverse(coverage.control[point][0], coverage.control[point][1])
@@ -188,17 +275,20 @@ def write_project(scenario, out_dir: str | os.PathLike) -> Path:
                                                "lon": lon_c, "sigma_m": [v[2] for v in coverage.control.values()]})
         lines += ["[[coverage]]", f'name = "{coverage.name}"', f"epoch_s = {coverage.epoch!r}",
                   f'measurements = "c{c}_measurements.csv"', f'control = "c{c}_control.csv"', ""]
-        for strip in coverage.strips:
+        for j, strip in enumerate(coverage.strips):
             stem = f"c{c}_{strip.name}"
             write_csv(out / f"{stem}_navigation.csv", dict(zip(NAVIGATION_COLUMNS, (
                 strip.record_times, *strip.record_positions.T, *strip.record_velocities.T, strip.record_altitudes),
                 strict=True)), float_format="%.12g")
-            write_csv(out / f"{stem}_marks.csv", {"x_mm": strip.mark_x, "time_s": strip.mark_times},
-                      float_format="%.12g")
-            write_csv(out / f"{stem}_nadir.csv", {"x_mm": strip.nadir_x, "y_mm": strip.nadir_y},
-                      float_format="%.12g")
+            mark_xc, mark_yc = frames[j].to_comparator(strip.mark_x, np.full(strip.mark_x.shape, _MARK_OFFSET))
+            write_csv(out / f"{stem}_marks.csv", {"x_mm": np.asarray(mark_xc), "y_mm": np.asarray(mark_yc),
+                                                  "time_s": strip.mark_times}, float_format="%.12g")
+            reference = np.asarray(frames[j].to_comparator([0.0, float(strip.mark_x[-1])], [0.0, 0.0])).T
+            far = np.asarray(frames[j].to_comparator(0.0, 50.0))
             lines += ["[[coverage.strip]]", f'name = "{strip.name}"', f'navigation = "{stem}_navigation.csv"',
-                      f'time_marks = "{stem}_marks.csv"', f'nadir = "{stem}_nadir.csv"',
+                      f'time_marks = "{stem}_marks.csv"',
+                      f"range_reference_mm = {[[float(v) for v in point] for point in reference]!r}",
+                      f"far_range_mm = {[float(v) for v in far]!r}",
                       f"sweep_delay_mm = {strip.sweep_delay!r}", f"range_scale_m_per_mm = {strip.range_scale!r}",
                       f'look_side = "{strip.look_side}"', ""]
         lat, lon = scenario.plane.inverse(coverage.truth[:, 0], coverage.truth[:, 1])

@@ -8,6 +8,7 @@
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -175,3 +176,52 @@ class SplineError(eqx.Module):
         u = (position - i)[..., None]
         basis = ((1 - u) ** 3 / 6, (3 * u**3 - 6 * u**2 + 4) / 6, (-3 * u**3 + 3 * u**2 + 3 * u + 1) / 6, u**3 / 6)
         return sum(b * self.coefficients[i + j] for j, b in enumerate(basis))
+
+
+ERROR_MODELS = ("constant", "linear", "schuler", "spline")
+"""Navigation-error models of the block adjustment, in order of flexibility."""
+
+
+def _error_model(model, coefficients, start, end, knot_spacing):
+    """The error model of ``coefficients`` ``(q, k)``, each coefficient in metres (rates per strip duration)."""
+    span, middle = end - start, 0.5 * (start + end)
+    if model == "constant":
+        return ConstantError(coefficients[0])
+    if model == "linear":
+        return LinearError(coefficients[0], coefficients[1] / span, middle)
+    if model == "schuler":
+        return SchulerError(coefficients[0], coefficients[1] / span, coefficients[2], coefficients[3], middle)
+    return SplineError(coefficients, start, knot_spacing)
+
+
+def error_basis_size(model: str, start: float, end: float, knot_spacing: float = 300.0) -> int:
+    """Number q of basis functions (coefficients per component) of an error model over [start, end] s."""
+    if model not in ERROR_MODELS:
+        raise SeaiceError(f"navigation-error model must be one of {', '.join(ERROR_MODELS)}, got {model!r}")
+    if model == "spline":
+        return SplineError.zeros(start, end, knot_spacing).coefficients.shape[0]
+    return {"constant": 1, "linear": 2, "schuler": 4}[model]
+
+
+def error_basis(model: str, times, start: float, end: float, knot_spacing: float = 300.0):
+    """Basis functions of a navigation-error model: e(t) = values(t) @ C and ė(t) = rates(t) @ C.
+
+    The models are linear in their coefficients C ``(q, k)``, scaled so that every coefficient is in metres: an
+    offset; a rate times the strip duration (linear, about the strip's middle); the Schuler sine and cosine
+    amplitudes; the B-spline control values with knots every ``knot_spacing`` s from ``start``.
+
+    Args:
+        times: ``(n,)`` seconds. start, end: the strip's time span.
+
+    Returns:
+        ``(values (n, q), rates (n, q))``, rates in 1/s.
+    """
+    q = error_basis_size(model, start, end, knot_spacing)
+    times = jnp.asarray(times, float)
+
+    def values(t):
+        return jax.jacfwd(lambda c: _error_model(model, c, start, end, knot_spacing)(t)[..., 0])(jnp.zeros((q, 1)))[
+            ..., 0]
+
+    basis, rates = jax.jvp(values, (times,), (jnp.ones_like(times),))
+    return basis, rates

@@ -61,6 +61,19 @@ class ImageFrame(eqx.Module):
         dy = jnp.asarray(y_comparator, float) - self.origin[1]
         return dx * self.x_axis[0] + dy * self.x_axis[1], dx * self.y_axis[0] + dy * self.y_axis[1]
 
+    def to_comparator(self, x, y):
+        """``(x', y')`` comparator coordinates of image points (the inverse of :meth:`to_image`)."""
+        x, y = jnp.asarray(x, float), jnp.asarray(y, float)
+        return (self.origin[0] + x * self.x_axis[0] + y * self.y_axis[0],
+                self.origin[1] + x * self.x_axis[1] + y * self.y_axis[1])
+
+    @classmethod
+    def placed(cls, angle: float, origin):
+        """The frame of a film laid on the comparator turned by ``angle`` (radians) with its image origin at
+        comparator ``origin`` ``(2,)``."""
+        axis = jnp.array([np.cos(angle), np.sin(angle)])
+        return cls(jnp.asarray(origin, float), axis, jnp.array([-axis[1], axis[0]]))
+
 
 def check_time_marks(mark_x, mark_times, where: str = "time marks"):
     """Raise naming the first mark whose position or time does not increase."""

@@ -25,7 +25,7 @@ class StripRecord:
         record_times: ``(k,)``; record_positions, record_velocities: ``(k, 3)`` recorded navigation (ECEF m, m/s);
         record_altitudes: ``(k,)`` altimeter readings, m.
         mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
-        nadir_x, nadir_y: ``(n,)`` image coordinates of nadir returns (one per time mark), mm.
+        nadir_x, nadir_y: ``(n,)`` image coordinates of nadir returns, mm.
         sweep_delay, range_scale: the radar's nominal constants. look_side.
         truth: the true trajectory; true_sweep_delay, true_range_scale; true_navigation_error: ``(k, 2)`` the
             systematic north/east error of the recorded positions at the record times (simulations only).
@@ -65,6 +65,17 @@ class Measurements:
     y: np.ndarray
 
 
+def strip_navigation(strip: StripRecord, filter_window: float | None = 180.0, filter_order: int = 2,
+                     filter_weighting: str = "flat") -> NavigationSpline:
+    """The strip's navigation as a trajectory: the records, low-pass filtered (step 2) unless ``filter_window`` is
+    ``None`` (the filter's velocities are its polynomials' derivatives)."""
+    positions, velocities = strip.record_positions, strip.record_velocities
+    if filter_window:
+        positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order,
+                                               filter_weighting)
+    return NavigationSpline(strip.record_times, positions, velocities)
+
+
 def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
             sweep_delay=None, range_scale=None, radius=MEAN_RADIUS, filter_weighting: str = "flat"):
     """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
@@ -79,11 +90,7 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
         rows = measurements.strip == j
         if not np.any(rows):
             continue
-        positions, velocities = strip.record_positions, strip.record_velocities
-        if filter_window:
-            positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order,
-                                                   filter_weighting)
-        navigation = NavigationSpline(strip.record_times, positions, velocities)
+        navigation = strip_navigation(strip, filter_window, filter_order, filter_weighting)
         t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
         c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
         f = strip.range_scale if range_scale is None else range_scale[j]
@@ -91,3 +98,9 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
         s, v = navigation(t)
         points[rows] = np.asarray(ground_point(s, v, r, radius, strip.look_side, on_failure="nan"))
     return points
+
+
+def nadir_altitudes(strip: StripRecord):
+    """Altimeter heights ``(n,)`` (m) at the imaging times of a strip's nadir returns (eq. A1, then the records)."""
+    times = imaging_time(strip.nadir_x, strip.mark_x, strip.mark_times)
+    return np.interp(np.asarray(times), strip.record_times, strip.record_altitudes)

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, unit_vector
+from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_east, unit_vector
 from seaice_jax.geometry.projections import TangentPlane
 from seaice_jax.geometry.range_doppler import imaging_time_and_range
 from seaice_jax.geometry.trajectory import CircularTrajectory
@@ -30,6 +30,10 @@ from seaice_jax.sensors.navigation import SCHULER_PERIOD
 from seaice_jax.sensors.strips import Measurements, StripRecord
 
 _DEG = np.pi / 180.0
+
+
+def _north_east(position):
+    return tuple(np.asarray(a) for a in north_east(np.asarray(position)))
 
 
 @dataclass(frozen=True)
@@ -98,14 +102,6 @@ class FlightPlan:
         return self.altitude / np.cos(self.far_angle * _DEG)
 
 
-def _local_axes(position):
-    """North and east unit vectors ``(..., 3)`` at geocentric positions."""
-    lat, lon = latitude_longitude(position)
-    east = jnp.stack([-jnp.sin(lon), jnp.cos(lon), jnp.zeros_like(lon)], axis=-1)
-    north = jnp.stack([-jnp.sin(lat) * jnp.cos(lon), -jnp.sin(lat) * jnp.sin(lon), jnp.cos(lat)], axis=-1)
-    return np.asarray(north), np.asarray(east)
-
-
 def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts, drift_direction=0.6435,
                      schuler_phase=0.0):
     """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off).
@@ -135,7 +131,7 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
     step = (1.0 - plan.overlap) * (swath_far - swath_near)
     start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
     heading = plan.heading * _DEG
-    north0, east0 = (np.asarray(a) for a in _local_axes(start))
+    north0, east0 = _north_east(start)
     forward = np.cos(heading) * north0 + np.sin(heading) * east0
     right = np.cross(forward, np.asarray(start))
     side = 1.0 if plan.look_side == "right" else -1.0
@@ -164,7 +160,7 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         t = np.arange(strip_starts[k] - 60.0, strip_starts[k] + plan.strip_duration + 60.0 + 1e-9,
                       plan.record_interval)
         true_position, true_velocity = (np.asarray(a) for a in truth(t))
-        north, east = _local_axes(true_position)
+        north, east = _north_east(true_position)
         error, rate = navigation_error(t, errors, turn_offsets, strip_starts, drift_direction, schuler_phase)
         noise = rng.normal(0.0, errors.record_noise, (t.size, 2))
         offset = error + noise
@@ -233,6 +229,8 @@ class Scenario:
     Attributes:
         name: ``"aidjex"`` or ``"prudhoe"``. plane: the tangent-plane map projection. plan, errors: as flown.
         kinds: ``(n,)`` per feature: ``"ice"``, ``"station"`` or ``"land"``. coverages: in time order.
+        floe: ``(n,)`` the floe each feature lies on (``None`` on land). floe_rotation: ``(floes,)`` each floe's
+            own rotation between the coverages, radians counter-clockwise in the map.
     """
 
     name: str
@@ -241,6 +239,8 @@ class Scenario:
     errors: ErrorModel
     kinds: np.ndarray
     coverages: tuple
+    floe: np.ndarray | None = None
+    floe_rotation: np.ndarray | None = None
 
 
 def _to_ground(plane, xy):
@@ -251,7 +251,7 @@ def _to_ground(plane, xy):
 def _block_plane(plan: FlightPlan):
     """Tangent plane at the middle of the block flown by ``plan`` (flight lines step to the look side)."""
     start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
-    north, east = (np.asarray(a) for a in _local_axes(np.asarray(start)))
+    north, east = _north_east(start)
     forward = np.cos(plan.heading * _DEG) * north + np.sin(plan.heading * _DEG) * east
     right = np.cross(forward, np.asarray(start))
     side = 1.0 if plan.look_side == "right" else -1.0
@@ -264,13 +264,16 @@ def _block_plane(plan: FlightPlan):
 
 def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: ErrorModel | None = None,
                     features: int = 600, days: float = 16.0, drift_per_day: float = 1900.0,
-                    deformation: float = 0.10, station_sigma: float = 100.0) -> Scenario:
+                    deformation: float = 0.10, station_sigma: float = 100.0, floe_size: float = 15_000.0,
+                    floe_rotation: float = 0.5, floe_shift: float = 50.0) -> Scenario:
     """The AIDJEX experiment of source 000: a block of strips over drifting ice, flown twice ``days`` apart.
 
-    Between the flights the ice drifts ``drift_per_day`` m/day westward, deforms by an affine ``deformation``
-    (a 10 % stretch and shear about the block centre) and its floes move by ~100 m each (small rotations). Three
-    manned drifting stations, forming a triangle, are control points with satellite-fix accuracy
-    ``station_sigma``; the second flight is shifted with the ice so it covers the same features.
+    Between the flights the ice drifts ``drift_per_day`` m/day westward and deforms by an affine ``deformation``
+    (a 10 % stretch and shear about the block centre). The ice is broken into floes about ``floe_size`` m across
+    (the Voronoi cells of random floe centres); each floe also turns about its centre by a random angle of σ
+    ``floe_rotation`` degrees and shifts by σ ``floe_shift`` m. Three manned drifting stations, forming a triangle,
+    are control points with satellite-fix accuracy ``station_sigma``; the second flight is shifted with the ice so
+    it covers the same features.
     """
     plan = plan or FlightPlan()
     errors = errors or ErrorModel()
@@ -290,7 +293,17 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
     kinds = np.array(["station"] * 3 + ["ice"] * (features - 3))
     shift = np.array([-drift_per_day * days, 0.0])  # westward
     matrix = np.array([[1.0 + deformation, 0.3 * deformation], [0.0, 1.0 - 0.5 * deformation]])
-    second = first @ matrix.T + shift + rng.normal(0.0, 100.0, first.shape)
+    floe_count = max(1, int(round(4 * half_along * half_across / floe_size**2)))
+    centres = np.stack([rng.uniform(-1, 1, floe_count) * half_along, rng.uniform(-1, 1, floe_count) * half_across], 1)
+    centres = centres[:, :1] * along + side * centres[:, 1:] * across
+    floe = np.argmin(np.linalg.norm(first[:, None, :] - centres[None], axis=2), axis=1)
+    turn = rng.normal(0.0, floe_rotation * _DEG, floe_count)
+    moved = first @ matrix.T + shift
+    moved_centres = centres @ matrix.T + shift
+    cos, sin = np.cos(turn)[floe], np.sin(turn)[floe]
+    arm = moved - moved_centres[floe]
+    second = (moved_centres[floe] + np.stack([cos * arm[:, 0] - sin * arm[:, 1], sin * arm[:, 0] + cos * arm[:, 1]], 1)
+              + rng.normal(0.0, floe_shift, (floe_count, 2))[floe])
     start = np.array([float(a) for a in plane.forward(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)])
     coverages = []
     for k, (positions, name) in enumerate(((first, "day 0"), (second, f"day {days:g}"))):
@@ -300,7 +313,7 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
         measurements = image_points(_to_ground(plane, positions), strips, flown, errors, rng)
         control = {i: (*(positions[i] + rng.normal(0.0, station_sigma, 2)), station_sigma) for i in range(3)}
         coverages.append(Coverage(name, k * days * 86400.0, strips, measurements, positions, control))
-    return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages))
+    return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages), floe, turn)
 
 
 def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_points: int = 20,
