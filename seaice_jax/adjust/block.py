@@ -22,7 +22,9 @@ Observations:
 Where the residuals live: the forward model A5 maps an image measurement to the ground in closed form, so the
 residual is formed in the map (rectified minus adjusted position) and weighted by the image-measurement
 covariance propagated through the same model: the ground residual is whitened by W = diag(σx, σy)⁻¹ J⁻¹, with
-J = ∂(map x, y)/∂(image x, y) at the start. To first order this is exactly the image-space adjustment (the map of
+J = ∂(map x, y)/∂(image x, y) at the current estimate (re-evaluated every iteration but not differentiated, as
+in the Gauss-Helmert model: the incidence angle, hence the ground-range error of a slant-range error, changes as
+the navigation is corrected by kilometres). To first order this is exactly the image-space adjustment (the map of
 an image point is locally a bijection), and the whitened residuals *are* the image residuals in units of their σ
 (component 0 along track, 1 in slant range), so the w-tests name the image coordinate at fault. The inverse
 (ground -> image) would need an iterative zero-Doppler search in every residual.
@@ -117,11 +119,15 @@ class _Data(eqx.Module):
     velocity: Float[Array, "m 3"]
     north: Float[Array, "m 3"]
     east: Float[Array, "m 3"]
+    north_rate: Float[Array, "m 3"]
+    east_rate: Float[Array, "m 3"]
     y: Float[Array, " m"]
     sweep_delay: Float[Array, " m"]
     range_scale: Float[Array, " m"]
     sign: Float[Array, " m"]
-    whiten: Float[Array, "m 2 2"]
+    time_per_mm: Float[Array, " m"]  # dt/dx of eq. A1 at each observation, s/mm
+    weight: Float[Array, " m"]  # 1, or 0 for padding
+    image_sigma: Float[Array, "2"]
     nadir_index: Int[Array, "n 2"]
     nadir_y: Float[Array, " n"]
     nadir_sweep_delay: Float[Array, " n"]
@@ -140,19 +146,38 @@ class _Data(eqx.Module):
     radius: float = eqx.field(static=True)
 
 
-def _image_residual(strip_unknowns, point, row, data: _Data):
-    """Whitened residual ``(2,)`` of one image observation (map position by A1, A2, A5 minus the point)."""
+def _rectified(strip_unknowns, row, data: _Data, shift):
+    """Map position ``(2,)`` of image observation ``row`` by A1, A2, A5 with the corrected navigation and radar
+    constants; ``shift`` = (Δt s, Δy mm) moves the observation along track and in range (for ∂map/∂image)."""
     q = data.basis.shape[1]
     basis, rates = data.basis[row], data.rates[row]
     error_n, error_e = basis @ strip_unknowns[:q], basis @ strip_unknowns[q:2 * q]
     rate_n, rate_e = rates @ strip_unknowns[:q], rates @ strip_unknowns[q:2 * q]
-    position = data.position[row] - error_n * data.north[row] - error_e * data.east[row]
-    velocity = data.velocity[row] - rate_n * data.north[row] - rate_e * data.east[row]
-    slant = (data.y[row] + data.sweep_delay[row] + strip_unknowns[2 * q]) * (data.range_scale[row]
-                                                                              + strip_unknowns[2 * q + 1])
+    # the corrected velocity is the time derivative of the corrected position (the local axes turn along the track)
+    velocity = (data.velocity[row] - rate_n * data.north[row] - rate_e * data.east[row]
+                - error_n * data.north_rate[row] - error_e * data.east_rate[row])
+    position = data.position[row] - error_n * data.north[row] - error_e * data.east[row] + shift[0] * velocity
+    slant = (data.y[row] + shift[1] + data.sweep_delay[row] + strip_unknowns[2 * q]) * (data.range_scale[row]
+                                                                                         + strip_unknowns[2 * q + 1])
     ground = _ground_point(position, velocity, slant, data.radius, data.sign[row], 0.0, 0.0)
-    x, y = data.plane.forward(*latitude_longitude(ground))
-    return data.whiten[row] @ (jnp.stack([x, y]) - point)
+    return jnp.stack(data.plane.forward(*latitude_longitude(ground)))
+
+
+def _whitening(strip_unknowns, row, data: _Data):
+    """W = diag(σx, σy)⁻¹ (∂map/∂image)⁻¹ ``(2, 2)`` at the current unknowns (zero for padding rows)."""
+    jacobian = jax.jacfwd(_rectified, argnums=3)(strip_unknowns, row, data, jnp.zeros(2))
+    jacobian = jacobian * jnp.stack([data.time_per_mm[row], jnp.ones(())])[None, :]
+    return jnp.linalg.inv(jacobian) / data.image_sigma[:, None] * data.weight[row]
+
+
+def _image_residual(strip_unknowns, point, row, data: _Data):
+    """Whitened residual ``(2,)`` of one image observation: W (rectified map position − point).
+
+    The weight matrix W follows the unknowns (it is evaluated at the current estimate) but is not differentiated,
+    as in the Gauss-Helmert model.
+    """
+    whiten = jax.lax.stop_gradient(_whitening(strip_unknowns, row, data))
+    return whiten @ (_rectified(strip_unknowns, row, data, jnp.zeros(2)) - point)
 
 
 def _image_residuals(unknowns, points, data: _Data):
@@ -161,10 +186,16 @@ def _image_residuals(unknowns, points, data: _Data):
 
 
 def _nadir_residuals(unknowns, data: _Data):
-    """Whitened (r_n − h_n)/σ of the nadir returns (eq. A3)."""
-    slant = ((data.nadir_y + data.nadir_sweep_delay + unknowns[data.nadir_index[:, 0]])
-             * (data.nadir_range_scale + unknowns[data.nadir_index[:, 1]]))
-    return (slant - data.nadir_altitude) * data.nadir_weight
+    """Whitened residuals of the nadir returns (eq. A3: r_n = (y_n + c) f = h_n), in image space:
+    (y_n + c − h_n / f) / σ with σ² = σy² + (σh / f0)².
+
+    In image space because y_n is the measured quantity: written as (y_n + c) f − h_n with a fixed weight, the
+    fit could shrink the scatter of the noisy y_n by shrinking f, a regression-dilution bias of the range scale
+    (several per cent in level flight, where y_n hardly varies).
+    """
+    sweep_delay = data.nadir_sweep_delay + unknowns[data.nadir_index[:, 0]]
+    range_scale = data.nadir_range_scale + unknowns[data.nadir_index[:, 1]]
+    return (data.nadir_y + sweep_delay - data.nadir_altitude / range_scale) * data.nadir_weight
 
 
 def _control_residuals(points, data: _Data):
@@ -190,10 +221,10 @@ def _normal_equations(unknowns, points, data: _Data):
     point_normal = jnp.zeros((n_points, 2, 2)).at[data.point].add(jnp.einsum("mik,mil->mkl", j_point, j_point))
     point_right = jnp.zeros((n_points, 2)).at[data.point].add(-jnp.einsum("mik,mi->mk", j_point, e))
     eye = jnp.eye(2)
-    point_normal = point_normal.at[data.control_point].add(data.control_weight[:, None, None] ** 2 * eye)
+    point_normal = point_normal.at[data.control_point].add(data.control_weight[:, None, None] ** 2 * eye[None])
     point_right = point_right.at[data.control_point].add(-_control_residuals(points, data)
                                                          * data.control_weight[:, None])
-    point_normal = point_normal + data.point_prior[:, None, None] * eye
+    point_normal = point_normal + data.point_prior[:, None, None] * eye[None]
     point_inverse = jnp.linalg.inv(point_normal)
     coupling = jnp.einsum("mik,mil->mkl", j_strip, j_point)  # A_o = J_θᵀ J_p, (m, k, 2)
     first, second = data.pair_first, data.pair_second
@@ -207,6 +238,13 @@ def _normal_equations(unknowns, points, data: _Data):
 
 
 _reduced_normal_equations = jax.jit(_normal_equations)
+
+
+@jax.jit
+def _all_rectified(unknowns, data: _Data):
+    """``(m, 2)`` map positions of all image observations with the current unknowns."""
+    rows = jnp.arange(data.point.shape[0])
+    return jax.vmap(lambda t, r: _rectified(t, r, data, jnp.zeros(2)))(unknowns[data.index], rows)
 
 
 @jax.jit
@@ -385,9 +423,9 @@ class _Problem:
 @jax.jit
 def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_scale, sign, plane, radius):
     """Sensor state, local axes, start map positions and ∂map/∂image at image points ``(n,)`` of one strip."""
-    times = imaging_time(x, mark_x, mark_times)
+    times, time_per_mm = jax.jvp(lambda v: imaging_time(v, mark_x, mark_times), (x,), (jnp.ones_like(x),))
     position, velocity = navigation(times)
-    north, east = north_east(position)
+    (north, east), (north_rate, east_rate) = jax.jvp(north_east, (position,), (velocity,))
 
     def to_map(xy):
         s, v = navigation(imaging_time(xy[0], mark_x, mark_times))
@@ -395,7 +433,8 @@ def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
         return jnp.stack(plane.forward(*latitude_longitude(g)))
 
     image = jnp.stack([x, y], axis=1)
-    return times, position, velocity, north, east, jax.vmap(to_map)(image), jax.vmap(jax.jacfwd(to_map))(image)
+    return (times, time_per_mm, position, velocity, north, east, north_rate, east_rate, jax.vmap(to_map)(image),
+            jax.vmap(jax.jacfwd(to_map))(image))
 
 
 @functools.partial(jax.jit, static_argnames=("model", "duration", "knot_spacing"))
@@ -412,18 +451,16 @@ def _strip_observations(strip, x, y, options, plane, radius):
     geometry = _strip_geometry(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
                                jnp.asarray(_pad(x, size, x[0])), jnp.asarray(_pad(y, size, y[0])),
                                strip.sweep_delay, strip.range_scale, look_sign(strip.look_side), plane, radius)
-    times, position, velocity, north, east, start, jacobian = (np.asarray(a)[:n] for a in geometry)
+    times, time_per_mm, position, velocity, north, east, north_rate, east_rate, start, jacobian = (
+        np.asarray(a)[:n] for a in geometry)
     basis, rates = (np.asarray(a) for a in _error_basis(options.navigation_model, times - strip.start_time,
                                                          strip.end_time - strip.start_time, options.knot_spacing))
-    sigma = np.asarray(options.image_sigma, float)
-    # rows without a ground solution (range errors putting a near-range point inside the flying height) get NaN
+    # rows without a ground solution (range errors putting a near-range point inside the flying height) are dropped
     usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
-    whiten = np.full(jacobian.shape, np.nan)
-    whiten[usable] = np.linalg.inv(jacobian[usable]) / sigma[None, :, None]
     return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
-                y=np.asarray(y, float), sweep_delay=np.full(n, strip.sweep_delay),
-                range_scale=np.full(n, strip.range_scale), sign=np.full(n, float(look_sign(strip.look_side))),
-                whiten=whiten), start
+                north_rate=north_rate, east_rate=east_rate, y=np.asarray(y, float),
+                sweep_delay=np.full(n, strip.sweep_delay), range_scale=np.full(n, strip.range_scale),
+                sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
 
 
 def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Problem:
@@ -461,8 +498,9 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 shared_radar = radar
             strip_slices.append((c, j, np.arange(first, first + 2 * q), shared_radar))
     point_key, point_unknown, sums, counts = [], {}, [], []
-    tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east", "y",
-                              "sweep_delay", "range_scale", "sign", "whiten")}
+    tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
+                              "north_rate", "east_rate", "y",
+                              "sweep_delay", "range_scale", "sign", "time_per_mm")}
     coverage_of, strip_of, point_of = [], [], []
     nadir = {k: [] for k in ("index", "y", "sweep_delay", "range_scale", "altitude")}
     slices = iter(strip_slices)
@@ -479,8 +517,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 nadir["altitude"].append(nadir_altitudes(strip))
             if rows.size == 0:
                 continue
-            table, start = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius)
-            valid = np.isfinite(start).all(axis=1) & np.isfinite(table["whiten"]).all(axis=(1, 2))
+            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius)
             for key in table:
                 tables[key].append(table[key][valid])
             tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
@@ -537,10 +574,10 @@ def _data(problem: _Problem, options: BlockOptions, plane, radius, pad: bool) ->
     sizes = (_bucket(m), _bucket(n_points), _bucket(first.size), _bucket(max(nadir["y"].size, 1)),
              _bucket(max(control["point"].size, 1))) if pad else (m, n_points, first.size, nadir["y"].size,
                                                                    control["point"].size)
-    padded = {k: _pad(v, sizes[0], v[0] if k not in ("whiten",) else 0.0) for k, v in obs.items()}
+    padded = {k: _pad(v, sizes[0], v[0]) for k, v in obs.items()}
     padded["point"] = _pad(obs["point"], sizes[0], 0)
-    nadir_weight = 1.0 / np.hypot(options.altimeter_sigma, nadir["range_scale"] * options.image_sigma[1])
-    nadir_pad = {k: _pad(v, sizes[3], 0) for k, v in nadir.items()}
+    nadir_weight = 1.0 / np.hypot(options.image_sigma[1], options.altimeter_sigma / nadir["range_scale"])
+    nadir_pad = {k: _pad(v, sizes[3], 1 if k == "range_scale" else 0) for k, v in nadir.items()}
     if nadir["y"].size == 0:
         nadir_pad["index"] = np.zeros((sizes[3], 2), int)
     weight = np.where(np.isfinite(problem.prior_sigma), 1.0 / problem.prior_sigma, 0.0)
@@ -548,9 +585,11 @@ def _data(problem: _Problem, options: BlockOptions, plane, radius, pad: bool) ->
         index=jnp.asarray(padded["index"]), point=jnp.asarray(padded["point"]), basis=jnp.asarray(padded["basis"]),
         rates=jnp.asarray(padded["rates"]), position=jnp.asarray(padded["position"]),
         velocity=jnp.asarray(padded["velocity"]), north=jnp.asarray(padded["north"]),
-        east=jnp.asarray(padded["east"]), y=jnp.asarray(padded["y"]), sweep_delay=jnp.asarray(padded["sweep_delay"]),
+        east=jnp.asarray(padded["east"]), north_rate=jnp.asarray(padded["north_rate"]),
+        east_rate=jnp.asarray(padded["east_rate"]), y=jnp.asarray(padded["y"]), sweep_delay=jnp.asarray(padded["sweep_delay"]),
         range_scale=jnp.asarray(padded["range_scale"]), sign=jnp.asarray(padded["sign"]),
-        whiten=jnp.asarray(padded["whiten"]), nadir_index=jnp.asarray(nadir_pad["index"], int),
+        time_per_mm=jnp.asarray(padded["time_per_mm"]), weight=jnp.asarray(_pad(np.ones(m), sizes[0], 0.0)),
+        image_sigma=jnp.asarray(options.image_sigma, float), nadir_index=jnp.asarray(nadir_pad["index"], int),
         nadir_y=jnp.asarray(nadir_pad["y"], float), nadir_sweep_delay=jnp.asarray(nadir_pad["sweep_delay"], float),
         nadir_range_scale=jnp.asarray(nadir_pad["range_scale"], float),
         nadir_altitude=jnp.asarray(nadir_pad["altitude"], float),
@@ -573,31 +612,45 @@ def _check_datum(problem: _Problem, data: _Data, unknowns, points):
     dead = scale <= 0
     scaled = normal / np.outer(np.where(dead, 1.0, scale), np.where(dead, 1.0, scale))
     values, vectors = np.linalg.eigh(scaled)
-    null = vectors[:, values <= 1e-11 * values[-1]]
+    # condition > 1e8: exactly singular, or held only by second-order effects such as the Earth's curvature (a
+    # block with one control point can turn about it: its rotation is then "determined" at the 1e-9 level)
+    null = vectors[:, values <= 1e-8 * values[-1]]
     if null.shape[1] == 0 and not dead.any():
         return
     index, point = np.asarray(data.index), np.asarray(data.point)
     n_real = len(problem.point_key)
-    motions = set()
     where = np.asarray(points)[:n_real]
-    centred = where - where.mean(axis=0)
+    coverage = np.array([key[0] for key in problem.point_key])
+    motions = set()
     for z in null.T:
         z = z / np.where(dead, 1.0, scale)
         moved = np.zeros_like(np.asarray(points))
         np.add.at(moved, point, np.einsum("mka,mk->ma", coupling, z[index]))
         moved = -np.einsum("pab,pb->pa", point_inverse, moved)[:n_real]
-        design = np.concatenate([np.tile(np.eye(2), (n_real, 1)),
-                                 np.stack([-centred[:, 1], centred[:, 0]], 1).reshape(-1, 1)], axis=1)
-        fit, *_ = np.linalg.lstsq(design, moved.reshape(-1), rcond=None)
-        shift, turn = np.hypot(*fit[:2]), abs(fit[2]) * np.sqrt(np.mean(np.sum(centred**2, axis=1)))
-        explained = np.linalg.norm(design @ fit) > 0.9 * np.linalg.norm(moved) > 0
-        motions.add(("rotation" if turn > shift else "shift") if explained else "deformation")
+        if np.linalg.norm(moved) <= 1e-9 * np.linalg.norm(z):
+            motions.add("separation of unknowns that act alike (no point moves)")
+            continue
+        for c in np.unique(coverage):  # each coverage's points: an affine motion of the whole, or more?
+            on = coverage == c
+            if np.linalg.norm(moved[on]) <= 1e-6 * np.linalg.norm(moved):
+                continue
+            centred = where[on] - where[on].mean(axis=0)
+            design = np.concatenate([np.ones((int(on.sum()), 1)), centred], axis=1)
+            fit, *_ = np.linalg.lstsq(design, moved[on], rcond=None)  # rows: shift, then the 2 x 2 matrix
+            if np.linalg.norm(design @ fit - moved[on]) > 0.1 * np.linalg.norm(moved[on]):
+                motions.add("deformation")
+                continue
+            extent = np.sqrt(np.mean(np.sum(centred**2, axis=1)))
+            matrix = fit[1:].T
+            parts = {"shift": np.hypot(*fit[0]), "rotation": abs(matrix[1, 0] - matrix[0, 1]) / 2 * extent,
+                     "stretch": np.linalg.norm((matrix + matrix.T) / 2) * extent}
+            motions.update(k for k, v in parts.items() if v > 0.3 * max(parts.values()))
     involved = sorted(set(np.nonzero(dead)[0].tolist()) | set(np.nonzero(np.any(np.abs(null) > 0.1, axis=1))[0]
                                                                 .tolist()))
     names = [problem.names[k] for k in involved]
     shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
     raise RankDeficiencyError(
-        f"datum defect: nothing fixes the block's {' and '.join(sorted(motions))} ({null.shape[1]} free "
+        f"datum defect: nothing fixes the block's {' and '.join(sorted(motions)) or 'unknowns'} ({null.shape[1]} free "
         f"combination(s) of the unknowns {shown}); add control points (one fixes a shift, two also the rotation) or "
         "priors on the navigation errors", names)
 
@@ -631,13 +684,12 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
         unknowns, points, iterations, converged, cofactors = _dense_solve(problem, data, options, unknowns, points)
     else:
         iterations, converged = 0, False
-        for iterations in range(1, options.max_iterations + 1):
+        while iterations < options.max_iterations and not converged:
             step, point_step, decrease = _schur_step(unknowns, points, data)
             unknowns, points = unknowns + step, points + point_step
+            iterations += 1
             small = max(float(jnp.max(jnp.abs(step))), float(jnp.max(jnp.abs(point_step)))) < options.tolerance
-            if small or float(decrease) < options.tolerance**2:
-                converged = True
-                break
+            converged = small or float(decrease) < options.tolerance**2
         cofactors = _schur_statistics(unknowns, points, data)
     return _result(problem, data, options, solver, coverages, n_points, unknowns, points, iterations, converged,
                    cofactors)
@@ -695,8 +747,7 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
     dof = n_observations - size - 2 * n_real
     sigma0 = float(np.sqrt(square_sum / dof)) if dof > 0 else float("nan")
     w = np.asarray(w_test(jnp.asarray(e), jnp.asarray(redundancy)))
-    whiten = np.asarray(data.whiten)[:m]
-    ground = points[problem.observations["point"]] + np.linalg.solve(whiten, e[..., None])[..., 0]
+    ground = np.asarray(_all_rectified(jnp.asarray(unknowns), data))[:m]
     sigma_image = np.asarray(options.image_sigma, float)
     residuals = e * sigma_image
     positions, covariances = [], []

@@ -112,6 +112,11 @@ def moving_average(times, values, window: float = 180.0, order: int = 2, weighti
     return smoothed, derivative
 
 
+def _scaled(factor, vector):
+    """``(..., k)``: each of the ``(...)`` factors times the ``(k,)`` vector."""
+    return factor[..., None] * jnp.broadcast_to(vector, factor.shape + vector.shape)
+
+
 class ConstantError(eqx.Module):
     """Navigation error constant in time: e(t) = offset. ``offset``: ``(k,)`` (e.g. north, east in metres)."""
 
@@ -131,7 +136,7 @@ class LinearError(eqx.Module):
 
     def __call__(self, time):
         dt = jnp.asarray(time, float) - self.epoch
-        return self.offset + dt[..., None] * self.rate
+        return _scaled(jnp.ones_like(dt), self.offset) + _scaled(dt, self.rate)
 
 
 class SchulerError(eqx.Module):
@@ -146,8 +151,9 @@ class SchulerError(eqx.Module):
 
     def __call__(self, time):
         dt = jnp.asarray(time, float) - self.epoch
-        phase = (2.0 * jnp.pi / self.period * dt)[..., None]
-        return self.offset + dt[..., None] * self.rate + jnp.sin(phase) * self.sine + jnp.cos(phase) * self.cosine
+        phase = 2.0 * jnp.pi / self.period * dt
+        return (_scaled(jnp.ones_like(dt), self.offset) + _scaled(dt, self.rate) + _scaled(jnp.sin(phase), self.sine)
+                + _scaled(jnp.cos(phase), self.cosine))
 
 
 class SplineError(eqx.Module):

@@ -19,6 +19,7 @@ slant range gives y = r/f − c (mm).
 
 from dataclasses import dataclass, replace
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -102,13 +103,13 @@ class FlightPlan:
         return self.altitude / np.cos(self.far_angle * _DEG)
 
 
-def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts, drift_direction=0.6435,
-                     schuler_phase=0.0):
-    """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off).
+def navigation_error(times, errors: ErrorModel, turn_offset, drift_direction=0.6435, schuler_phase=0.0):
+    """North/east INS error ``(k, 2)`` (m) and its rate ``(k, 2)`` (m/s) at ``times`` (s after take-off) of one strip.
 
     A drift of ``errors.drift_rate`` toward ``drift_direction`` (radians from east... north = π/2), a Schuler
     oscillation of ``errors.schuler_amplitude`` (north) and 0.6 of it (east, a quarter period later) starting at
-    ``schuler_phase``, and the accumulated turn perturbations of the strip flown at each time.
+    ``schuler_phase``, and ``turn_offset`` ``(2,)``, the perturbations accumulated in the turns before this strip
+    (they happen during the turns, before the strip's records begin).
     """
     times = np.asarray(times, float)
     phase = 2 * np.pi * times / SCHULER_PERIOD + schuler_phase
@@ -118,8 +119,7 @@ def navigation_error(times, errors: ErrorModel, turn_offsets, strip_starts, drif
     error += errors.schuler_amplitude * np.stack([np.sin(phase), 0.6 * np.cos(phase)], 1)
     rate += errors.schuler_amplitude * 2 * np.pi / SCHULER_PERIOD * np.stack([np.cos(phase), -0.6 * np.sin(phase)],
                                                                               1)
-    strip_index = np.clip(np.searchsorted(strip_starts, times, side="right") - 1, 0, len(strip_starts) - 1)
-    error += turn_offsets[strip_index]
+    error += np.asarray(turn_offset, float)
     return error, rate
 
 
@@ -160,12 +160,20 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         t = np.arange(strip_starts[k] - 60.0, strip_starts[k] + plan.strip_duration + 60.0 + 1e-9,
                       plan.record_interval)
         true_position, true_velocity = (np.asarray(a) for a in truth(t))
-        north, east = _north_east(true_position)
-        error, rate = navigation_error(t, errors, turn_offsets, strip_starts, drift_direction, schuler_phase)
+        error, rate = navigation_error(t, errors, turn_offsets[k], drift_direction, schuler_phase)
         noise = rng.normal(0.0, errors.record_noise, (t.size, 2))
         offset = error + noise
-        recorded_position = true_position + offset[:, :1] * north + offset[:, 1:] * east
-        recorded_velocity = true_velocity + rate[:, :1] * north + rate[:, 1:] * east
+        # the error is an offset along the north and east axes *at the recorded position* (a few fixed-point
+        # steps, each gaining a factor |offset|/R), so the truth is exactly the record minus the offset there;
+        # the recorded velocity is the time derivative of the recorded position, turning axes included
+        recorded_position = true_position
+        for _ in range(4):
+            north, east = _north_east(recorded_position)
+            recorded_position = true_position + offset[:, :1] * north + offset[:, 1:] * east
+        turning = jax.jvp(north_east, (jnp.asarray(recorded_position),), (jnp.asarray(true_velocity),))[1]
+        north_rate, east_rate = (np.asarray(a) for a in turning)
+        recorded_velocity = (true_velocity + rate[:, :1] * north + rate[:, 1:] * east + error[:, :1] * north_rate
+                             + error[:, 1:] * east_rate)
         altitudes = plan.altitude + rng.normal(0.0, errors.altimeter_noise, t.size)
         mark_times = np.arange(strip_starts[k], strip_starts[k] + plan.strip_duration + 1e-9,
                                plan.time_mark_interval)

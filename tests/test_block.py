@@ -1,0 +1,152 @@
+"""The simultaneous block adjustment against simulations whose truth is known."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from seaice_jax.adjust.block import BlockOptions, simultaneous_block
+from seaice_jax.errors import RankDeficiencyError
+from seaice_jax.sensors.strips import Measurements
+from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, aidjex_scenario
+
+# systematic errors only: INS drift, Schuler oscillation, turn perturbations, radar constants
+SYSTEMATIC = ErrorModel().only("drift_rate", "schuler_amplitude", "turn_perturbation", "sweep_delay_error",
+                               "range_scale_error")
+# those a linear navigation-error model and the nadir calibration represent exactly
+LINEAR = SYSTEMATIC.only("drift_rate", "turn_perturbation", "sweep_delay_error")
+IMAGE_SIGMA = 0.04  # mm
+
+
+@pytest.fixture(scope="module")
+def exact():
+    """Two coverages of three strips; no random errors at all, stations known to 1 cm."""
+    return aidjex_scenario(11, plan=FlightPlan(strips=3), errors=LINEAR, features=120, station_sigma=0.01)
+
+
+def errors_of(result, scenario):
+    return [result.positions[c] - coverage.truth for c, coverage in enumerate(scenario.coverages)]
+
+
+def test_noise_free_block_returns_the_truth_from_the_navigation_only_start(exact):
+    """INS drift, turn perturbations and a sweep-delay error, no noise, range scale known, no navigation priors:
+    the solve recovers every point, the navigation-error curves and the sweep delay."""
+    options = BlockOptions(solver="schur", navigation_model="linear", offset_prior=None, shape_prior=None,
+                           range_scale_prior=1e-9)
+    result = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), options)
+    assert result.converged and result.solver == "schur"
+    start = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), replace(options, max_iterations=0))
+    start_error = np.concatenate([e[np.isfinite(e).all(1)] for e in errors_of(start, exact)])
+    error = np.concatenate([e[np.isfinite(e).all(1)] for e in errors_of(result, exact)])
+    assert np.abs(start_error).max() > 1000.0  # the navigation errors put the start kilometres off
+    assert error.shape[0] > 150 and np.abs(error).max() < 1.0
+    for estimate, strip in zip(result.strips, [s for c in exact.coverages for s in c.strips], strict=True):
+        curve, sigma = estimate.navigation_error(strip.record_times)
+        assert np.abs(curve - strip.true_navigation_error).max() < 1.0  # the INS error curve, north and east
+        assert np.all(sigma > 0)
+        assert estimate.sweep_delay == pytest.approx(strip.true_sweep_delay, abs=1e-3)
+        assert estimate.range_scale == pytest.approx(strip.true_range_scale, rel=1e-5)
+
+
+def noisy(scenario, rng, sigma=IMAGE_SIGMA, noise=1.0):
+    """The scenario with fresh image-measurement, nadir and control noise of the σ the adjustment assumes
+    (``noise=0``: none, but the stations' σ is still the 100 m of a satellite fix)."""
+    coverages = []
+    for coverage in scenario.coverages:
+        m = coverage.measurements
+        measured = Measurements(m.point, m.strip, m.x + noise * rng.normal(0, sigma, m.x.size),
+                                m.y + noise * rng.normal(0, sigma, m.y.size))
+        strips = [replace(s, nadir_y=s.nadir_y + noise * rng.normal(0, sigma, s.nadir_y.size))
+                  for s in coverage.strips]
+        control = {p: (x + noise * rng.normal(0, 100.0), y + noise * rng.normal(0, 100.0), 100.0)
+                   for p, (x, y, _) in coverage.control.items()}
+        coverages.append(replace(coverage, measurements=measured, strips=strips, control=control))
+    return replace(scenario, coverages=tuple(coverages))
+
+
+@pytest.fixture(scope="module")
+def small():
+    scenario = aidjex_scenario(12, plan=FlightPlan(strips=2), errors=SYSTEMATIC, features=70, station_sigma=0.01)
+    options = BlockOptions(image_sigma=(IMAGE_SIGMA, IMAGE_SIGMA), altimeter_sigma=0.0, radar_constants="shared")
+    return scenario, options
+
+
+def test_schur_complement_equals_the_dense_engine(small):
+    scenario, options = small
+    data = noisy(scenario, np.random.default_rng(3))
+    dense = simultaneous_block(data.coverages, data.plane, len(data.kinds), replace(options, solver="dense"))
+    schur = simultaneous_block(data.coverages, data.plane, len(data.kinds), replace(options, solver="schur"))
+    assert (dense.solver, schur.solver) == ("dense", "schur")
+    for c in range(2):
+        np.testing.assert_allclose(schur.positions[c], dense.positions[c], atol=1e-3)
+        np.testing.assert_allclose(schur.covariances[c], dense.covariances[c], rtol=1e-6, atol=1e-3)  # m²
+    np.testing.assert_allclose(schur.drift_covariance[0], dense.drift_covariance[0], rtol=1e-6, atol=1e-3)
+    np.testing.assert_allclose(schur.redundancy, dense.redundancy, atol=1e-6)
+    controlled = schur.redundancy > 1e-3  # points on one strip only have r = 0: nothing to test there
+    np.testing.assert_allclose(schur.w[controlled], dense.w[controlled], atol=1e-4)
+    assert schur.sigma0 == pytest.approx(dense.sigma0, rel=1e-6)
+    assert schur.degrees_of_freedom == dense.degrees_of_freedom
+    assert -1e-9 < schur.redundancy.min() and schur.redundancy.max() < 1.0 and controlled.mean() > 0.15
+
+
+def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small):
+    """300 noise realizations: the empirical RMS about the noise-free solution equals the predicted σ (shared
+    radar constants correlate the two coverages, so the drift covariance needs its cross terms).
+
+    No priors here: a prior is a pseudo-observation whose value the Monte Carlo would have to draw too (its σ is
+    in the predicted covariance); the stations and the nadir returns determine everything of the linear model.
+    """
+    scenario, options = small
+    options = replace(options, solver="schur", navigation_model="linear", offset_prior=None, shape_prior=None,
+                      sweep_delay_prior=None, range_scale_prior=None)
+    rng = np.random.default_rng(4)
+    exact = noisy(scenario, rng, noise=0.0)
+    reference = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), options)
+    station, drift = [], []
+    for _ in range(300):
+        data = noisy(scenario, rng)
+        result = simultaneous_block(data.coverages, data.plane, len(data.kinds), options)
+        station.append(np.stack([result.positions[c][:3] - reference.positions[c][:3] for c in range(2)]))
+        drift.append(result.drift[0] - reference.drift[0])
+    station, drift = np.array(station), np.array(drift)
+    predicted_station = np.stack([np.diagonal(reference.covariances[c][:3], axis1=1, axis2=2) for c in range(2)])
+    ratio = np.sqrt(np.mean(station**2, axis=0) / predicted_station)
+    assert np.all(np.abs(ratio - 1.0) < 0.2)  # each station and component (MC error ~4 %)
+    assert np.sqrt(np.mean(station**2) / np.mean(predicted_station)) == pytest.approx(1.0, abs=0.1)
+    seen = np.isfinite(reference.drift[0]).all(axis=1)
+    predicted_drift = np.diagonal(reference.drift_covariance[0][seen], axis1=1, axis2=2)
+    ratio = np.sqrt(np.nanmean(drift[:, seen] ** 2, axis=0) / predicted_drift)
+    assert seen.sum() > 30 and np.median(np.abs(ratio - 1.0)) < 0.05
+    assert np.sqrt(np.nanmean(drift[:, seen] ** 2) / np.mean(predicted_drift)) == pytest.approx(1.0, abs=0.1)
+    correlation = np.abs(reference.drift_covariance[0][seen][:, 0, 0] - sum(
+        np.diagonal(reference.covariances[c][seen], axis1=1, axis2=2)[:, 0] for c in range(2)))
+    assert correlation.max() > 0.0  # the cross term is there (and the Monte Carlo says it is right)
+
+
+def test_a_planted_blunder_is_flagged_and_named(small):
+    scenario, options = small
+    data = noisy(scenario, np.random.default_rng(5))
+    m = data.coverages[0].measurements
+    tie = next(p for p in np.unique(m.point) if np.sum(m.point == p) == 2 and p >= 3)
+    row = np.nonzero(m.point == tie)[0][1]
+    x = m.x.copy()
+    x[row] += 1000.0 / (FlightPlan().speed / FlightPlan().film_rate)  # 1 km along track, in film mm
+    bad = replace(data.coverages[0], measurements=replace(m, x=x))
+    result = simultaneous_block((bad, data.coverages[1]), data.plane, len(data.kinds), options)
+    assert result.blunders and result.blunders[0].point == tie and result.blunders[0].coverage == 0
+    assert result.blunders[0].component == "x" and abs(result.blunders[0].w) > 10
+    clean = simultaneous_block(data.coverages, data.plane, len(data.kinds), options)
+    assert tie not in {b.point for b in clean.blunders}
+
+
+def test_without_control_or_priors_the_datum_defect_is_named(small):
+    scenario, options = small
+    free = replace(options, navigation_model="linear", offset_prior=None, shape_prior=None)
+    none = tuple(replace(c, control={}) for c in scenario.coverages)
+    with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's .*shift") as error:
+        simultaneous_block(none, scenario.plane, len(scenario.kinds), free)
+    assert any("navigation north offset" in name for name in error.value.parameters)
+    one = tuple(replace(c, control={0: c.control[0]}) for c in scenario.coverages)
+    with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's rotation"):
+        simultaneous_block(one, scenario.plane, len(scenario.kinds), free)
+    simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds), free)  # three stations fix it
