@@ -59,9 +59,12 @@ def _simulate(args) -> int:
 
 
 def _block(args) -> int:
+    from seaice_jax.adjust.block import BlockOptions
     from seaice_jax.radar_block import run_block
 
-    run = run_block(args.project, args.out, args.method)
+    options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
+                           knot_spacing=args.knot_spacing, radar_constants=args.radar_constants)
+    run = run_block(args.project, args.out, args.method, options)
     print(run.report)
     print(f"wrote {len(run.files)} files into {args.out}")
     return 0
@@ -109,8 +112,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     block = commands.add_parser("block", help="adjust a radar block project and measure the drift")
     block.add_argument("project", help="project TOML")
-    block.add_argument("--method", choices=["sequential"], default="sequential",
-                       help="sequential: the 1979 method of source 000")
+    block.add_argument("--method", choices=["simultaneous", "sequential"], default="simultaneous",
+                       help="simultaneous: every unknown in one adjustment (default); sequential: the 1979 method of "
+                            "source 000")
+    block.add_argument("--navigation-model", choices=["constant", "linear", "schuler", "spline"], default="schuler",
+                       help="navigation-error model (simultaneous method)")
+    block.add_argument("--navigation-scope", choices=["flight", "strip"], default="flight",
+                       help="flight: one error curve per coverage, an offset per strip (the INS error runs on "
+                            "through the turns); strip: every strip its own curve (needed by the spline model)")
+    block.add_argument("--knot-spacing", type=float, default=300.0, help="s, of the spline model")
+    block.add_argument("--radar-constants", choices=["strip", "shared"], default="strip",
+                       help="sweep delay and range scale per strip or one pair for the block")
     block.add_argument("--out", required=True, help="output folder")
     block.set_defaults(run=_block)
     return parser

@@ -127,23 +127,73 @@ def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, l
     return _save(fig, path)
 
 
-def plot_vectors(path: str | os.PathLike, positions, vectors, title: str, label: str, background=None) -> Path:
+def error_ellipses(covariances, confidence: float = 0.95):
+    """Semi-axes ``(n,)``, ``(n,)`` (same units as √covariance) and orientation ``(n,)`` (radians from x toward
+    y, of the major axis) of the ``confidence`` error ellipses of 2 × 2 ``covariances`` ``(n, 2, 2)``."""
+    covariances = np.asarray(covariances, float)
+    scale = np.sqrt(-2.0 * np.log(1.0 - confidence))  # χ² with 2 degrees of freedom
+    values, vectors = np.linalg.eigh(np.nan_to_num(covariances))
+    major, minor = np.sqrt(np.maximum(values[:, 1], 0)) * scale, np.sqrt(np.maximum(values[:, 0], 0)) * scale
+    bad = ~np.isfinite(covariances).all(axis=(1, 2))
+    major[bad] = minor[bad] = np.nan
+    return major, minor, np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1])
+
+
+def plot_vectors(path: str | os.PathLike, positions, vectors, title: str, label: str, background=None,
+                 covariances=None) -> Path:
     """Vectors (e.g. drift, error or discrepancy vectors, metres) at map positions (metres), as arrows.
 
-    The arrow scale is printed in the key; ``background``: optional ``(n, 2)`` positions drawn as dots.
+    The arrow scale is printed in the key; ``background``: optional ``(n, 2)`` positions drawn as dots;
+    ``covariances``: optional ``(n, 2, 2)`` (m²) of the vectors, drawn as 95 % error ellipses at the arrow tips, at
+    the arrows' scale.
     """
+    from matplotlib.patches import Ellipse
+
     positions, vectors = np.asarray(positions, float), np.asarray(vectors, float)
     fig, ax = plt.subplots(figsize=(7.5, 6.5))
     if background is not None:
         ax.scatter(*np.asarray(background).T / 1000.0, s=3, color="0.7", zorder=0)
     length = float(np.nanpercentile(np.hypot(*vectors.T), 90)) if vectors.size else 1.0
+    scale = max(length, 1e-9) / 8.0  # metres of vector per km of map
     arrows = ax.quiver(positions[:, 0] / 1000.0, positions[:, 1] / 1000.0, vectors[:, 0], vectors[:, 1],
-                       angles="xy", scale_units="xy", scale=max(length, 1e-9) / 8.0, width=0.003, color="C0")
+                       angles="xy", scale_units="xy", scale=scale, width=0.003, color="C0")
     ax.quiverkey(arrows, 0.85, 1.02, length, f"{length / 1000:.2f} km", labelpos="E", coordinates="axes")
+    if covariances is not None:
+        major, minor, angle = error_ellipses(covariances)
+        tips = positions / 1000.0 + vectors / scale
+        for k in np.nonzero(np.isfinite(major) & np.isfinite(tips).all(axis=1))[0]:
+            ax.add_patch(Ellipse(tips[k], 2 * major[k] / scale, 2 * minor[k] / scale, angle=np.degrees(angle[k]),
+                                 fill=False, color="C3", lw=0.6))
+        ax.plot([], [], color="C3", lw=0.6, label="95 % error ellipse")
+        ax.legend(loc="lower right", fontsize=8)
     ax.set_aspect("equal")
     ax.set_xlabel("x (km)")
     ax.set_ylabel("y (km)")
     ax.set_title(f"{title}\n{label}", fontsize=9)
+    return _save(fig, path)
+
+
+def plot_navigation_errors(path: str | os.PathLike, curves, title: str) -> Path:
+    """Estimated navigation-error curves with their ±1σ bands.
+
+    Args:
+        curves: sequence of ``(label, times (n,) s, errors (n, 2) m north/east, sigma (n, 2) m)``.
+    """
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for k, (label, times, errors, sigma) in enumerate(curves):
+        minutes = np.asarray(times) / 60.0
+        for component, ax in enumerate(axes):
+            ax.plot(minutes, errors[:, component] / 1000.0, color=f"C{k % 10}", lw=1, label=label)
+            ax.fill_between(minutes, (errors[:, component] - sigma[:, component]) / 1000.0,
+                            (errors[:, component] + sigma[:, component]) / 1000.0, color=f"C{k % 10}", alpha=0.2)
+    axes[0].set_ylabel("north error (km)")
+    axes[1].set_ylabel("east error (km)")
+    axes[1].set_xlabel("time (min)")
+    axes[0].set_title(title, fontsize=9)
+    if len(curves) <= 12:
+        axes[0].legend(fontsize=7, ncol=4)
+    for ax in axes:
+        ax.grid(alpha=0.3)
     return _save(fig, path)
 
 

@@ -1,12 +1,11 @@
 import numpy as np
 import pytest
 
-from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
+from seaice_jax.geometry.earth import MEAN_RADIUS, north_east, unit_vector
 from seaice_jax.sensors.strips import rectify
 from seaice_jax.simulate.aircraft import (
     ErrorModel,
     FlightPlan,
-    _local_axes,
     image_points,
     simulate_flight,
 )
@@ -34,7 +33,7 @@ def errors_of(errors, plan=PLAN, seed=0, axes="north-east", **rectify_options):
     times = np.array([np.interp(x, strips[j].mark_x, strips[j].mark_times) for x, j in zip(m.x, m.strip,
                                                                                              strict=True)])
     if axes == "north-east":
-        first, second = _local_axes(truth)
+        first, second = (np.asarray(a) for a in north_east(truth))
     else:
         velocity = np.stack([np.asarray(strips[j].truth(t)[1]) for t, j in zip(times, m.strip, strict=True)])
         up = truth / np.linalg.norm(truth, axis=1, keepdims=True)

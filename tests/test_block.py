@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from seaice_jax.adjust.block import BlockOptions, simultaneous_block
-from seaice_jax.errors import RankDeficiencyError
+from seaice_jax.errors import RankDeficiencyError, SeaiceError
 from seaice_jax.sensors.strips import Measurements
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, aidjex_scenario
 
@@ -140,8 +140,11 @@ def test_a_planted_blunder_is_flagged_and_named(small):
 
 
 def test_without_control_or_priors_the_datum_defect_is_named(small):
+    """Strip by strip, nothing ties the strips' errors together: one control point leaves the block free to turn
+    about it. One error curve per flight (the INS drift and Schuler oscillation run on through the turns, while
+    the strips alternate direction) fixes the rotation; only the shift is left to the control."""
     scenario, options = small
-    free = replace(options, navigation_model="linear", offset_prior=None, shape_prior=None)
+    free = replace(options, navigation_model="linear", navigation_scope="strip", offset_prior=None, shape_prior=None)
     none = tuple(replace(c, control={}) for c in scenario.coverages)
     with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's .*shift") as error:
         simultaneous_block(none, scenario.plane, len(scenario.kinds), free)
@@ -150,3 +153,20 @@ def test_without_control_or_priors_the_datum_defect_is_named(small):
     with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's rotation"):
         simultaneous_block(one, scenario.plane, len(scenario.kinds), free)
     simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds), free)  # three stations fix it
+    flight = replace(free, navigation_scope="flight")
+    with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's shift \("):
+        simultaneous_block(none, scenario.plane, len(scenario.kinds), flight)
+    result = simultaneous_block(one, scenario.plane, len(scenario.kinds), flight)
+    assert result.converged and np.isfinite(result.covariances[0][np.isfinite(result.positions[0]).all(1)]).all()
+
+
+def test_flight_scope_shares_the_drift_and_schuler_terms_of_a_coverage(small):
+    scenario, options = small
+    result = simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds), options)
+    first, second = result.strips[0], result.strips[1]  # the two strips of day 0
+    np.testing.assert_array_equal(first.coefficients[1:], second.coefficients[1:])
+    assert not np.allclose(first.coefficients[0], second.coefficients[0])  # the turn between them: own offsets
+    assert (first.basis_start, first.basis_end) == (second.basis_start, second.basis_end) == (
+        first.start_time, second.end_time)
+    with pytest.raises(SeaiceError, match="spline navigation model is per strip"):
+        BlockOptions(navigation_model="spline")

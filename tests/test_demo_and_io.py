@@ -19,7 +19,8 @@ def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
     assert names == ["aidjex", "figure_3_3_stations.csv", "map.png", "orbit_fit.json", "orbit_fit_report.txt",
                      "position_sigma.png", "radar_strip.csv", "satellite_image.csv"]
     assert (tmp_path / "out" / "aidjex" / "sequential" / "drift.geojson").exists()
-    assert "general drift" in result.summary
+    assert (tmp_path / "out" / "aidjex" / "simultaneous" / "navigation_errors.png").exists()
+    assert "general drift" in result.summary and "sequential (1979)" in result.summary
     assert result.fit_rms_km <= 1.25 and abs(result.fit_subtrack_pixel - 112) <= 5
     assert "SUBTRACK PIXEL" in (tmp_path / "out" / "orbit_fit_report.txt").read_text()
     assert (tmp_path / "out" / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

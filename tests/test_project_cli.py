@@ -37,6 +37,31 @@ def test_simulate_then_block_writes_the_products(project, tmp_path, capsys):
     assert dx == pytest.approx(-1900.0 * 16, abs=2000.0)  # the simulated 1.9 km/day westward drift
 
 
+def test_simultaneous_block_writes_covariances_ellipses_and_quality(project, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["block", str(project / "project.toml"), "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "method simultaneous" in report and "σ̂0" in report and "w-test" in report
+    names = {p.name for p in out.iterdir()}
+    assert {"adjusted_points.csv", "drift.csv", "drift.geojson", "strips.csv", "navigation_errors.csv",
+            "navigation_errors.png", "observations.csv", "report.txt", "drift_c1.png"} <= names
+    with open(out / "adjusted_points.csv", newline="") as stream:
+        points = list(csv.DictReader(stream))
+    sigma = np.array([[float(r["sigma_x_m"]), float(r["sigma_y_m"])] for r in points])
+    major = np.array([float(r["ellipse_major_m"]) for r in points])
+    assert np.all(sigma > 0) and np.all(major >= 2.4 * sigma.max(axis=1) - 1e-6)  # 95 %: 2.45 σ or more
+    with open(out / "drift.csv", newline="") as stream:
+        rows = list(csv.DictReader(stream))
+    assert all(float(r["sigma_dx_m"]) > 0 for r in rows)
+    truth = {}
+    with open(project / "truth.csv", newline="") as stream:
+        for r in csv.DictReader(stream):
+            truth.setdefault(r["point"], []).append((float(r["x_m"]), float(r["y_m"])))
+    errors = [(float(r["dx_m"]) - (truth[r["point"]][1][0] - truth[r["point"]][0][0])) / float(r["sigma_dx_m"])
+              for r in rows]
+    assert np.sqrt(np.mean(np.square(errors))) < 3.0  # drift errors of the size of their σ
+
+
 def test_project_round_trip_keeps_the_strips(project):
     loaded = read_project(project / "project.toml")
     assert [c.name for c in loaded.coverages] == ["day 0", "day 16"]

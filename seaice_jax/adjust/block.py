@@ -5,8 +5,11 @@ weighted square sum of all observation errors"; its sequential method (:mod:`sea
 approximates that. Here it is done rigorously.
 
 Unknowns:
-  * per strip, the coefficients of a navigation-error model (north and east; constant, linear, Schuler or cubic
-    B-spline, :func:`~seaice_jax.sensors.navigation.error_basis`), all in metres;
+  * the coefficients of a navigation-error model (north and east; constant, linear, Schuler or cubic B-spline,
+    :func:`~seaice_jax.sensors.navigation.error_basis`), all in metres, either per strip (``scope="strip"``) or, as
+    an inertial platform behaves, one continuous error per flight (``scope="flight"``: the drift and the Schuler
+    oscillation are shared by all strips of a coverage and only the offset is per strip, taking up the
+    perturbation of each turn; sources 000 and 002);
   * per strip (or one pair for the whole block) the corrections Δc (mm) and Δf (m/mm) to the nominal sweep delay
     and range scale;
   * the map coordinates (x, y) of every tie, drift and control point, one pair per coverage (ice moves between
@@ -45,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust.lsq import Observations, make_solver
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, w_test
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
@@ -65,7 +69,10 @@ class BlockOptions:
     """Choices of a simultaneous block adjustment.
 
     Attributes:
-        navigation_model: ``"constant"``, ``"linear"``, ``"schuler"`` or ``"spline"`` (per strip).
+        navigation_model: ``"constant"``, ``"linear"``, ``"schuler"`` or ``"spline"``.
+        navigation_scope: ``"flight"`` (one error curve per coverage with an offset per strip: the INS drift and
+            Schuler oscillation run on through the turns) or ``"strip"`` (every strip its own curve, nothing
+            shared; the spline model needs this).
         knot_spacing: s, of the spline model.
         radar_constants: ``"strip"`` (Δc, Δf per strip) or ``"shared"`` (one pair for the block).
         filter_window: s of the navigation moving average applied first (``None``: none).
@@ -83,6 +90,7 @@ class BlockOptions:
     """
 
     navigation_model: str = "schuler"
+    navigation_scope: str = "flight"
     knot_spacing: float = 300.0
     radar_constants: str = "strip"
     filter_window: float | None = 180.0
@@ -102,6 +110,11 @@ class BlockOptions:
         if self.navigation_model not in ERROR_MODELS:
             raise SeaiceError(f"navigation_model must be one of {', '.join(ERROR_MODELS)}, got "
                               f"{self.navigation_model!r}")
+        if self.navigation_scope not in ("flight", "strip"):
+            raise SeaiceError(f"navigation_scope must be 'flight' or 'strip', got {self.navigation_scope!r}")
+        if self.navigation_scope == "flight" and self.navigation_model == "spline":
+            raise SeaiceError("the spline navigation model is per strip: use navigation_scope='strip' (a spline's "
+                              "values already include each strip's offset)")
         if self.radar_constants not in ("strip", "shared"):
             raise SeaiceError(f"radar_constants must be 'strip' or 'shared', got {self.radar_constants!r}")
         if self.solver not in SOLVERS:
@@ -297,7 +310,9 @@ class StripEstimate:
     """The adjusted constants of one strip and its navigation-error curve.
 
     Attributes:
-        coverage, name: of the strip. start_time, end_time: s. model, knot_spacing: the error model.
+        coverage, name: of the strip. start_time, end_time: s. model, knot_spacing: the error model;
+            basis_start, basis_end: s, the time span its basis is scaled to (the strip's, or the whole flight's
+            when the error curve is shared by the strips of a flight).
         coefficients: ``(q, 2)`` north and east coefficients (m). covariance: ``(2q, 2q)`` their cofactor
             (north block first; a priori σ).
         sweep_delay, range_scale: c0 + Δc (mm), f0 + Δf (m/mm); sigma_sweep_delay, sigma_range_scale: their σ.
@@ -315,10 +330,12 @@ class StripEstimate:
     sigma_sweep_delay: float
     range_scale: float
     sigma_range_scale: float
+    basis_start: float
+    basis_end: float
 
     def navigation_error(self, times):
         """North/east navigation error ``(n, 2)`` m at ``times`` and its σ ``(n, 2)`` (the curve and its band)."""
-        basis = np.asarray(error_basis(self.model, times, self.start_time, self.end_time, self.knot_spacing)[0])
+        basis = np.asarray(error_basis(self.model, times, self.basis_start, self.basis_end, self.knot_spacing)[0])
         q = basis.shape[1]
         sigma = [np.sqrt(np.einsum("nq,qr,nr->n", basis, self.covariance[k * q:(k + 1) * q, k * q:(k + 1) * q],
                                    basis)) for k in range(2)]
@@ -390,18 +407,6 @@ class BlockResult:
         return np.array(out).reshape(-1, 2)
 
 
-def _bucket(n: int) -> int:
-    """Padded size: the next power of two up to 4096, then the next multiple of 4096."""
-    n = max(int(n), 1)
-    return 1 << (n - 1).bit_length() if n <= 4096 else -(-n // 4096) * 4096
-
-
-def _pad(array, size, fill=0):
-    array = np.asarray(array)
-    pad = np.full((size - array.shape[0],) + array.shape[1:], fill, dtype=array.dtype)
-    return np.concatenate([array, pad])
-
-
 @dataclass
 class _Problem:
     """The host-side layout of a block: unknown names, observation tables, start values."""
@@ -410,7 +415,7 @@ class _Problem:
     prior_sigma: np.ndarray
     start_points: np.ndarray
     point_key: list  # (coverage, point) of each point unknown (coverage −1 for static points)
-    strip_slices: list  # (coverage index, strip index, navigation slice, radar indices)
+    strip_slices: list  # (coverage index, strip index, navigation indices, radar indices, basis time span)
     observations: dict
     nadir: dict
     control: dict
@@ -443,18 +448,19 @@ def _error_basis(model, elapsed, duration, knot_spacing):
     return error_basis(model, elapsed, 0.0, duration, knot_spacing)
 
 
-def _strip_observations(strip, x, y, options, plane, radius):
-    """Per-observation geometry of one strip and the start map positions, with the whitening matrices."""
+def _strip_observations(strip, x, y, options, plane, radius, span):
+    """Per-observation geometry of one strip and the start map positions, with the whitening matrices; the
+    error basis is scaled to the time ``span`` (start, end) s."""
     navigation = strip_navigation(strip, options.filter_window)
     n = len(x)
-    size = _bucket(n)  # padded, so strips of similar size share one compilation
+    size = bucket(n)  # padded, so strips of similar size share one compilation
     geometry = _strip_geometry(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
-                               jnp.asarray(_pad(x, size, x[0])), jnp.asarray(_pad(y, size, y[0])),
+                               jnp.asarray(pad(x, size, x[0])), jnp.asarray(pad(y, size, y[0])),
                                strip.sweep_delay, strip.range_scale, look_sign(strip.look_side), plane, radius)
     times, time_per_mm, position, velocity, north, east, north_rate, east_rate, start, jacobian = (
         np.asarray(a)[:n] for a in geometry)
-    basis, rates = (np.asarray(a) for a in _error_basis(options.navigation_model, times - strip.start_time,
-                                                         strip.end_time - strip.start_time, options.knot_spacing))
+    basis, rates = (np.asarray(a) for a in _error_basis(options.navigation_model, times - span[0], span[1] - span[0],
+                                                         options.knot_spacing))
     # rows without a ground solution (range errors putting a near-range point inside the flying height) are dropped
     usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
     return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
@@ -470,24 +476,38 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
     model = options.navigation_model
     coefficient_names = {"constant": ["offset"], "linear": ["offset", "rate"],
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
+    offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
+    shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
+    flight = options.navigation_scope == "flight"
     shared_radar = None
     q = None
     for c, coverage in enumerate(coverages):
+        flown = (min(s.start_time for s in coverage.strips), max(s.end_time for s in coverage.strips))
+        shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
         for j, strip in enumerate(coverage.strips):
-            size = error_basis_size(model, strip.start_time, strip.end_time, options.knot_spacing)
+            span = flown if flight else (strip.start_time, strip.end_time)
+            size = error_basis_size(model, *span, options.knot_spacing)
             if q is not None and size != q:
                 raise SeaiceError(f"coverage {coverage.name!r} strip {strip.name}: the {model} model has {size} "
                                   f"coefficients here but {q} on the first strip; give all strips the same duration "
                                   "or choose a knot spacing that divides them equally")
             q = size
             label = f"{coverage.name}/{strip.name}"
-            first = len(names)
+            terms = coefficient_names.get(model, [f"spline[{k}]" for k in range(q)])
+            navigation = []
             for component in _COMPONENTS:
-                terms = coefficient_names.get(model, [f"spline[{k}]" for k in range(q)])
-                names += [f"{label} navigation {component} {term}" for term in terms]
-                offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
-                shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
-                prior += ([offset_sigma] * q if model == "spline" else [offset_sigma] + [shape_sigma] * (q - 1))
+                if not flight:
+                    navigation += range(len(names), len(names) + q)
+                    names += [f"{label} navigation {component} {term}" for term in terms]
+                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + [shape_sigma] * (q - 1)
+                    continue
+                if component not in shared:
+                    shared[component] = list(range(len(names), len(names) + q - 1))
+                    names += [f"{coverage.name} navigation {component} {term}" for term in terms[1:]]
+                    prior += [shape_sigma] * (q - 1)
+                navigation += [len(names), *shared[component]]
+                names.append(f"{label} navigation {component} offset")
+                prior.append(offset_sigma)
             if options.radar_constants == "strip" or shared_radar is None:
                 radar_label = label if options.radar_constants == "strip" else "block"
                 radar = [len(names), len(names) + 1]
@@ -496,7 +516,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                           options.range_scale_prior * strip.range_scale if options.range_scale_prior is not None
                           else np.inf]
                 shared_radar = radar
-            strip_slices.append((c, j, np.arange(first, first + 2 * q), shared_radar))
+            strip_slices.append((c, j, np.array(navigation), shared_radar, span))
     point_key, point_unknown, sums, counts = [], {}, [], []
     tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
                               "north_rate", "east_rate", "y",
@@ -507,7 +527,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
     for c, coverage in enumerate(coverages):
         m = coverage.measurements
         for j, strip in enumerate(coverage.strips):
-            _, _, navigation, radar = next(slices)
+            _, _, navigation, radar, span = next(slices)
             rows = np.nonzero(m.strip == j)[0]
             if strip.nadir_y.size:
                 nadir["index"].append(np.tile(radar, (strip.nadir_y.size, 1)))
@@ -517,7 +537,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 nadir["altitude"].append(nadir_altitudes(strip))
             if rows.size == 0:
                 continue
-            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius)
+            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius, span)
             for key in table:
                 tables[key].append(table[key][valid])
             tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
@@ -567,17 +587,17 @@ def _pairs(point, size):
     return first, second, size
 
 
-def _data(problem: _Problem, options: BlockOptions, plane, radius, pad: bool) -> _Data:
+def _data(problem: _Problem, options: BlockOptions, plane, radius, padded_sizes: bool) -> _Data:
     obs, nadir, control = problem.observations, problem.nadir, problem.control
     m, n_points = obs["point"].size, len(problem.point_key)
     first, second, _ = _pairs(obs["point"], m)
-    sizes = (_bucket(m), _bucket(n_points), _bucket(first.size), _bucket(max(nadir["y"].size, 1)),
-             _bucket(max(control["point"].size, 1))) if pad else (m, n_points, first.size, nadir["y"].size,
+    sizes = (bucket(m), bucket(n_points), bucket(first.size), bucket(max(nadir["y"].size, 1)),
+             bucket(max(control["point"].size, 1))) if padded_sizes else (m, n_points, first.size, nadir["y"].size,
                                                                    control["point"].size)
-    padded = {k: _pad(v, sizes[0], v[0]) for k, v in obs.items()}
-    padded["point"] = _pad(obs["point"], sizes[0], 0)
+    padded = {k: pad(v, sizes[0], v[0]) for k, v in obs.items()}
+    padded["point"] = pad(obs["point"], sizes[0], 0)
     nadir_weight = 1.0 / np.hypot(options.image_sigma[1], options.altimeter_sigma / nadir["range_scale"])
-    nadir_pad = {k: _pad(v, sizes[3], 1 if k == "range_scale" else 0) for k, v in nadir.items()}
+    nadir_pad = {k: pad(v, sizes[3], 1 if k == "range_scale" else 0) for k, v in nadir.items()}
     if nadir["y"].size == 0:
         nadir_pad["index"] = np.zeros((sizes[3], 2), int)
     weight = np.where(np.isfinite(problem.prior_sigma), 1.0 / problem.prior_sigma, 0.0)
@@ -586,21 +606,22 @@ def _data(problem: _Problem, options: BlockOptions, plane, radius, pad: bool) ->
         rates=jnp.asarray(padded["rates"]), position=jnp.asarray(padded["position"]),
         velocity=jnp.asarray(padded["velocity"]), north=jnp.asarray(padded["north"]),
         east=jnp.asarray(padded["east"]), north_rate=jnp.asarray(padded["north_rate"]),
-        east_rate=jnp.asarray(padded["east_rate"]), y=jnp.asarray(padded["y"]), sweep_delay=jnp.asarray(padded["sweep_delay"]),
+        east_rate=jnp.asarray(padded["east_rate"]), y=jnp.asarray(padded["y"]),
+        sweep_delay=jnp.asarray(padded["sweep_delay"]),
         range_scale=jnp.asarray(padded["range_scale"]), sign=jnp.asarray(padded["sign"]),
-        time_per_mm=jnp.asarray(padded["time_per_mm"]), weight=jnp.asarray(_pad(np.ones(m), sizes[0], 0.0)),
+        time_per_mm=jnp.asarray(padded["time_per_mm"]), weight=jnp.asarray(pad(np.ones(m), sizes[0], 0.0)),
         image_sigma=jnp.asarray(options.image_sigma, float), nadir_index=jnp.asarray(nadir_pad["index"], int),
         nadir_y=jnp.asarray(nadir_pad["y"], float), nadir_sweep_delay=jnp.asarray(nadir_pad["sweep_delay"], float),
         nadir_range_scale=jnp.asarray(nadir_pad["range_scale"], float),
         nadir_altitude=jnp.asarray(nadir_pad["altitude"], float),
-        nadir_weight=jnp.asarray(_pad(nadir_weight, sizes[3], 0.0)),
-        control_point=jnp.asarray(_pad(control["point"], sizes[4], 0)),
-        control_xy=jnp.asarray(_pad(control["xy"], sizes[4], 0.0)),
-        control_weight=jnp.asarray(_pad(1.0 / control["sigma"], sizes[4], 0.0)),
+        nadir_weight=jnp.asarray(pad(nadir_weight, sizes[3], 0.0)),
+        control_point=jnp.asarray(pad(control["point"], sizes[4], 0)),
+        control_xy=jnp.asarray(pad(control["xy"], sizes[4], 0.0)),
+        control_weight=jnp.asarray(pad(1.0 / control["sigma"], sizes[4], 0.0)),
         prior_weight=jnp.asarray(weight),
         point_prior=jnp.asarray(np.concatenate([np.zeros(n_points), np.ones(sizes[1] - n_points)])),
-        pair_first=jnp.asarray(_pad(first, sizes[2], 0)), pair_second=jnp.asarray(_pad(second, sizes[2], 0)),
-        pair_weight=jnp.asarray(_pad(np.ones(first.size), sizes[2], 0.0)), plane=plane, radius=radius)
+        pair_first=jnp.asarray(pad(first, sizes[2], 0)), pair_second=jnp.asarray(pad(second, sizes[2], 0)),
+        pair_weight=jnp.asarray(pad(np.ones(first.size), sizes[2], 0.0)), plane=plane, radius=radius)
 
 
 def _check_datum(problem: _Problem, data: _Data, unknowns, points):
@@ -676,9 +697,9 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
     n_real = len(problem.point_key)
     total = size + 2 * n_real
     solver = options.solver if options.solver != "auto" else ("dense" if total <= DENSE_LIMIT else "schur")
-    data = _data(problem, options, plane, radius, pad=solver == "schur")
+    data = _data(problem, options, plane, radius, padded_sizes=solver == "schur")
     unknowns = jnp.zeros(size)
-    points = jnp.asarray(_pad(problem.start_points, data.point_prior.shape[0], 0.0))
+    points = jnp.asarray(pad(problem.start_points, data.point_prior.shape[0], 0.0))
     _check_datum(problem, data, unknowns, points)
     if solver == "dense":
         unknowns, points, iterations, converged, cofactors = _dense_solve(problem, data, options, unknowns, points)
@@ -739,7 +760,7 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
     strip_cofactor = cofactor[:size, :size]
     point_cofactor = point_cofactor[:n_real]
     nadir = np.asarray(_nadir_residuals(jnp.asarray(unknowns), data))
-    control = np.asarray(_control_residuals(jnp.asarray(_pad(points, data.point_prior.shape[0], 0.0)), data))
+    control = np.asarray(_control_residuals(jnp.asarray(pad(points, data.point_prior.shape[0], 0.0)), data))
     prior = np.asarray(data.prior_weight) * unknowns
     square_sum = float(np.sum(e**2) + np.sum(nadir**2) + np.sum(control**2) + np.sum(prior**2))
     n_observations = 2 * m + problem.nadir["y"].size + 2 * problem.control["point"].size + int(
@@ -777,14 +798,14 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
             drift_cov.append(covariance)
     strips = []
     q = problem.q
-    for (c, j, navigation, radar) in problem.strip_slices:
+    for (c, j, navigation, radar, span) in problem.strip_slices:
         strip = coverages[c].strips[j]
         strips.append(StripEstimate(
             coverages[c].name, strip.name, strip.start_time, strip.end_time, options.navigation_model,
             options.knot_spacing, unknowns[navigation].reshape(2, q).T,
             strip_cofactor[np.ix_(navigation, navigation)], strip.sweep_delay + unknowns[radar[0]],
             float(np.sqrt(strip_cofactor[radar[0], radar[0]])), strip.range_scale + unknowns[radar[1]],
-            float(np.sqrt(strip_cofactor[radar[1], radar[1]]))))
+            float(np.sqrt(strip_cofactor[radar[1], radar[1]])), *span))
     limit = float(critical_value(options.alpha))
     bad = np.argwhere(np.abs(w) > limit)
     order = np.argsort(-np.abs(w[bad[:, 0], bad[:, 1]])) if bad.size else []
@@ -799,7 +820,7 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
 def _drift_cross_cofactor(problem, data, cofactor, unknowns, points, first_points, second_points):
     """Cofactor blocks ``(g, 2, 2)`` between the earlier and later unknowns of each drift point (they are
     correlated through shared strip unknowns, e.g. shared radar constants)."""
-    padded = jnp.asarray(_pad(points, data.point_prior.shape[0], 0.0))
+    padded = jnp.asarray(pad(points, data.point_prior.shape[0], 0.0))
     _, _, point_inverse, _, coupling, *_ = _reduced_normal_equations(jnp.asarray(unknowns), padded, data)
     point_inverse, coupling = np.asarray(point_inverse), np.asarray(coupling)
     index = np.asarray(data.index)

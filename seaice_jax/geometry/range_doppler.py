@@ -5,6 +5,7 @@ and Earth-fixed (metres, m/s); the velocity is the sensor's velocity relative to
 Doppler condition refers to stationary ground points.
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 
@@ -140,11 +141,17 @@ def imaging_time_and_range(
         ``(time, slant_range)``, each ``(...)``.
     """
     point = jnp.asarray(point, float)
-    flat = point.reshape(-1, 3)
-    solve = jax.vmap(lambda p: _solve_time(p, trajectory, time_start, time_end, wavelength, doppler,
-                                           grid_points, iterations))
-    time, slant = solve(flat)
+    time, slant = _solve_times(point.reshape(-1, 3), trajectory, time_start, time_end, wavelength, doppler,
+                               grid_points, iterations)
     return time.reshape(point.shape[:-1]), slant.reshape(point.shape[:-1])
+
+
+@eqx.filter_jit
+def _solve_times(points, trajectory, time_start, time_end, wavelength, doppler, grid_points, iterations):
+    """:func:`_solve_time` for ``(n, 3)`` points; compiled once per trajectory type and array shapes (a
+    trajectory that is an ``eqx.Module`` is an argument, not a constant baked into the compiled code)."""
+    return jax.vmap(lambda p: _solve_time(p, trajectory, time_start, time_end, wavelength, doppler, grid_points,
+                                          iterations))(points)
 
 
 def _solve_time(point, trajectory, time_start, time_end, wavelength, doppler, grid_points, iterations):

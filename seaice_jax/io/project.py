@@ -4,6 +4,7 @@
 [project]
 name = "aidjex"
 map_centre_deg = [74.8, -147.5]      # tangent-plane map centre (latitude, longitude)
+surface = "ice"                      # or "land": points do not move between coverages
 
 [[coverage]]
 name = "day 0"
@@ -71,6 +72,7 @@ class Project:
     point_ids: tuple[str, ...]
     point_kinds: tuple[str, ...]
     coverages: tuple[ProjectCoverage, ...]
+    surface: str = "ice"
 
 
 def _read_table(path: Path, columns, numeric=None):
@@ -157,6 +159,9 @@ def read_project(path: str | os.PathLike) -> Project:
     if not (isinstance(centre, list) and len(centre) == 2):
         raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude]")
     plane = TangentPlane(np.radians(centre[0]), np.radians(centre[1]))
+    surface = project.get("surface", "ice")
+    if surface not in ("ice", "land"):
+        raise SeaiceError(f"{path}: [project] surface must be 'ice' or 'land', got {surface!r}")
     ids: dict[str, int] = {}
     kinds: dict[str, tuple[str, str]] = {}  # point -> (kind, where it was first given)
     coverages = []
@@ -224,7 +229,7 @@ def read_project(path: str | os.PathLike) -> Project:
     if not coverages:
         raise SeaiceError(f"{path}: no [[coverage]] tables")
     point_kinds = tuple(kinds.get(p, ("control",))[0] for p in ids)
-    return Project(project.get("name", path.stem), plane, tuple(ids), point_kinds, tuple(coverages))
+    return Project(project.get("name", path.stem), plane, tuple(ids), point_kinds, tuple(coverages), surface)
 
 
 def _point_kinds(scenario):
@@ -248,7 +253,9 @@ def write_project(scenario, out_dir: str | os.PathLike) -> Path:
     ids = [f"P{i + 1:04d}" for i in range(len(scenario.kinds))]
     kinds = _point_kinds(scenario)
     centre = [float(np.degrees(scenario.plane.latitude)), float(np.degrees(scenario.plane.longitude))]
-    lines = ["[project]", f'name = "{scenario.name}"', f"map_centre_deg = [{centre[0]!r}, {centre[1]!r}]", ""]
+    surface = "land" if np.all(np.asarray(scenario.kinds) == "land") else "ice"
+    lines = ["[project]", f'name = "{scenario.name}"', f"map_centre_deg = [{centre[0]!r}, {centre[1]!r}]",
+             f'surface = "{surface}"', ""]
     truth_rows = {"point": [], "coverage": [], "kind": [], "lat": [], "lon": [], "x_m": [], "y_m": []}
     for c, coverage in enumerate(scenario.coverages, start=1):
         m = coverage.measurements

@@ -8,10 +8,13 @@ navigation). Simulated strips also carry their truth (``truth``, ``true_sweep_de
 
 from dataclasses import dataclass, field
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.range_doppler import ground_point
+from seaice_jax.geometry.range_doppler import _ground_point, look_sign
 from seaice_jax.sensors.navigation import NavigationSpline, moving_average
 from seaice_jax.sensors.slar import imaging_time, slant_range
 
@@ -87,17 +90,26 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
     """
     points = np.empty((measurements.x.size, 3))
     for j, strip in enumerate(strips):
-        rows = measurements.strip == j
-        if not np.any(rows):
+        rows = np.nonzero(measurements.strip == j)[0]
+        if rows.size == 0:
             continue
         navigation = strip_navigation(strip, filter_window, filter_order, filter_weighting)
-        t = imaging_time(measurements.x[rows], strip.mark_x, strip.mark_times)
         c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
         f = strip.range_scale if range_scale is None else range_scale[j]
-        r = slant_range(measurements.y[rows], c, f)
-        s, v = navigation(t)
-        points[rows] = np.asarray(ground_point(s, v, r, radius, strip.look_side, on_failure="nan"))
+        size = bucket(rows.size)  # padded: strips of similar size share one compilation
+        ground = _rectify_strip(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
+                                jnp.asarray(pad(measurements.x[rows], size, measurements.x[rows[0]])),
+                                jnp.asarray(pad(measurements.y[rows], size, measurements.y[rows[0]])), c, f,
+                                look_sign(strip.look_side), radius)
+        points[rows] = np.asarray(ground)[:rows.size]
     return points
+
+
+@jax.jit
+def _rectify_strip(navigation, mark_x, mark_times, x, y, sweep_delay, range_scale, sign, radius):
+    """Ground points ``(n, 3)`` of image points of one strip (eqs A1, A2, A5); NaN rows where there is none."""
+    position, velocity = navigation(imaging_time(x, mark_x, mark_times))
+    return _ground_point(position, velocity, slant_range(y, sweep_delay, range_scale), radius, sign, 0.0, 0.0)
 
 
 def nadir_altitudes(strip: StripRecord):

@@ -270,18 +270,23 @@ def _block_plane(plan: FlightPlan):
     return TangentPlane(lat, lon)
 
 
+_STATIONS = ((-0.5, -0.4), (0.5, -0.4), (0.0, 0.5), (-0.8, 0.6), (0.8, 0.6))
+"""Station positions as fractions of the block's half length (along) and half width (across): the AIDJEX
+triangle first."""
+
+
 def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: ErrorModel | None = None,
                     features: int = 600, days: float = 16.0, drift_per_day: float = 1900.0,
                     deformation: float = 0.10, station_sigma: float = 100.0, floe_size: float = 15_000.0,
-                    floe_rotation: float = 0.5, floe_shift: float = 50.0) -> Scenario:
+                    floe_rotation: float = 0.5, floe_shift: float = 50.0, stations: int = 3) -> Scenario:
     """The AIDJEX experiment of source 000: a block of strips over drifting ice, flown twice ``days`` apart.
 
     Between the flights the ice drifts ``drift_per_day`` m/day westward and deforms by an affine ``deformation``
     (a 10 % stretch and shear about the block centre). The ice is broken into floes about ``floe_size`` m across
     (the Voronoi cells of random floe centres); each floe also turns about its centre by a random angle of σ
-    ``floe_rotation`` degrees and shifts by σ ``floe_shift`` m. Three manned drifting stations, forming a triangle,
-    are control points with satellite-fix accuracy ``station_sigma``; the second flight is shifted with the ice so
-    it covers the same features.
+    ``floe_rotation`` degrees and shifts by σ ``floe_shift`` m. Manned drifting stations (three, forming a
+    triangle, as in AIDJEX; up to five) are control points with satellite-fix accuracy ``station_sigma``; the
+    second flight is shifted with the ice so it covers the same features.
     """
     plan = plan or FlightPlan()
     errors = errors or ErrorModel()
@@ -295,10 +300,11 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
     side = 1.0 if plan.look_side == "right" else -1.0
     local = np.stack([rng.uniform(-0.95, 0.95, features) * half_along,
                       rng.uniform(-0.95, 0.95, features) * half_across], 1)
-    local[:3] = [[-0.5 * half_along, -0.4 * half_across], [0.5 * half_along, -0.4 * half_across],
-                 [0.0, 0.5 * half_across]]  # the three stations, a triangle
+    if not 0 <= stations <= len(_STATIONS):
+        raise ValueError(f"stations must be 0 to {len(_STATIONS)}, got {stations}")
+    local[:stations] = np.array(_STATIONS[:stations]) * [half_along, half_across]
     first = local[:, :1] * along + side * local[:, 1:] * across
-    kinds = np.array(["station"] * 3 + ["ice"] * (features - 3))
+    kinds = np.array(["station"] * stations + ["ice"] * (features - stations))
     shift = np.array([-drift_per_day * days, 0.0])  # westward
     matrix = np.array([[1.0 + deformation, 0.3 * deformation], [0.0, 1.0 - 0.5 * deformation]])
     floe_count = max(1, int(round(4 * half_along * half_across / floe_size**2)))
@@ -319,7 +325,7 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
         flown = replace(plan, centre_latitude=float(np.degrees(lat)), centre_longitude=float(np.degrees(lon)))
         strips = simulate_flight(flown, errors, rng, take_off_time=3600.0)
         measurements = image_points(_to_ground(plane, positions), strips, flown, errors, rng)
-        control = {i: (*(positions[i] + rng.normal(0.0, station_sigma, 2)), station_sigma) for i in range(3)}
+        control = {i: (*(positions[i] + rng.normal(0.0, station_sigma, 2)), station_sigma) for i in range(stations)}
         coverages.append(Coverage(name, k * days * 86400.0, strips, measurements, positions, control))
     return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages), floe, turn)
 

@@ -1,0 +1,16 @@
+"""Padding arrays to a few bucket sizes, so jitted functions compile once per bucket rather than once per size."""
+
+import numpy as np
+
+
+def bucket(n: int) -> int:
+    """Padded size of ``n`` rows: the next power of two up to 4096, then the next multiple of 4096."""
+    n = max(int(n), 1)
+    return 1 << (n - 1).bit_length() if n <= 4096 else -(-n // 4096) * 4096
+
+
+def pad(array, size: int, fill=0):
+    """``array`` with rows of ``fill`` appended up to ``size`` rows."""
+    array = np.asarray(array)
+    filler = np.full((size - array.shape[0],) + array.shape[1:], fill, dtype=array.dtype)
+    return np.concatenate([array, filler])
