@@ -8,8 +8,9 @@ Unknowns:
   * the coefficients of a navigation-error model (north and east; constant, linear, Schuler or cubic B-spline,
     :func:`~seaice_jax.sensors.navigation.error_basis`), all in metres, either per strip (``scope="strip"``) or, as
     an inertial platform behaves, one continuous error per flight (``scope="flight"``: the drift and the Schuler
-    oscillation are shared by all strips of a coverage and only the offset is per strip, taking up the
-    perturbation of each turn; sources 000 and 002);
+    oscillation are shared by all strips of a coverage; each strip has its own offset, taking up the perturbation of
+    each turn, and a small linear deviation with a tight prior, taking up what the filtered record noise leaves;
+    sources 000 and 002);
   * per strip (or one pair for the whole block) the corrections Δc (mm) and Δf (m/mm) to the nominal sweep delay
     and range scale;
   * the map coordinates (x, y) of every tie, drift and control point, one pair per coverage (ice moves between
@@ -70,17 +71,19 @@ class BlockOptions:
 
     Attributes:
         navigation_model: ``"constant"``, ``"linear"``, ``"schuler"`` or ``"spline"``.
-        navigation_scope: ``"flight"`` (one error curve per coverage with an offset per strip: the INS drift and
-            Schuler oscillation run on through the turns) or ``"strip"`` (every strip its own curve, nothing
-            shared; the spline model needs this).
+        navigation_scope: ``"flight"`` (one error curve per coverage, plus per strip an offset and a linear
+            deviation: the INS drift and Schuler oscillation run on through the turns) or ``"strip"`` (every strip
+            its own curve, nothing shared; the spline model needs this).
         knot_spacing: s, of the spline model.
         radar_constants: ``"strip"`` (Δc, Δf per strip) or ``"shared"`` (one pair for the block).
         filter_window: s of the navigation moving average applied first (``None``: none).
         image_sigma: ``(σx, σy)`` mm of the image measurements (along track, slant range).
         altimeter_sigma: m.
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior).
-        shape_prior: σ (m) of the other navigation coefficients: rate × strip duration, Schuler amplitudes
-            (``None``: no prior).
+        shape_prior: σ (m) of the other navigation coefficients: rate × strip (or flight) duration, Schuler
+            amplitudes (``None``: no prior).
+        deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
+            strip; flight scope only): the low-frequency part of the record noise that the filter lets through.
         sweep_delay_prior: σ of Δc, mm. range_scale_prior: σ of Δf relative to f0.
         static_points: land: one position per point for all coverages (no drift).
         solver: ``"auto"``, ``"dense"`` or ``"schur"``.
@@ -98,6 +101,7 @@ class BlockOptions:
     altimeter_sigma: float = 5.0
     offset_prior: float | None = 5000.0
     shape_prior: float | None = 3000.0
+    deviation_prior: float = 50.0
     sweep_delay_prior: float | None = 2.0
     range_scale_prior: float | None = 0.02
     static_points: bool = False
@@ -311,10 +315,10 @@ class StripEstimate:
 
     Attributes:
         coverage, name: of the strip. start_time, end_time: s. model, knot_spacing: the error model;
-            basis_start, basis_end: s, the time span its basis is scaled to (the strip's, or the whole flight's
-            when the error curve is shared by the strips of a flight).
-        coefficients: ``(q, 2)`` north and east coefficients (m). covariance: ``(2q, 2q)`` their cofactor
-            (north block first; a priori σ).
+            flight_start, flight_end: s, the flight's time span when the curve is shared by the strips of a flight
+            (``None``: the strip's own curve).
+        coefficients: ``(q, 2)`` north and east coefficients (m) of :func:`navigation_basis`. covariance:
+            ``(2q, 2q)`` their cofactor (north block first; a priori σ).
         sweep_delay, range_scale: c0 + Δc (mm), f0 + Δf (m/mm); sigma_sweep_delay, sigma_range_scale: their σ.
     """
 
@@ -330,12 +334,13 @@ class StripEstimate:
     sigma_sweep_delay: float
     range_scale: float
     sigma_range_scale: float
-    basis_start: float
-    basis_end: float
+    flight_start: float | None = None
+    flight_end: float | None = None
 
     def navigation_error(self, times):
         """North/east navigation error ``(n, 2)`` m at ``times`` and its σ ``(n, 2)`` (the curve and its band)."""
-        basis = np.asarray(error_basis(self.model, times, self.basis_start, self.basis_end, self.knot_spacing)[0])
+        flight = None if self.flight_start is None else (self.flight_start, self.flight_end)
+        basis = navigation_basis(self.model, times, (self.start_time, self.end_time), flight, self.knot_spacing)[0]
         q = basis.shape[1]
         sigma = [np.sqrt(np.einsum("nq,qr,nr->n", basis, self.covariance[k * q:(k + 1) * q, k * q:(k + 1) * q],
                                    basis)) for k in range(2)]
@@ -371,6 +376,7 @@ class BlockResult:
             position with the adjusted constants; residuals: ``(m, 2)`` image residuals (mm, computed −
             observed, x and y); redundancy, w: ``(m, 2)``.
         blunders: observations failing the w-test (|w| > critical value at ``options.alpha``), worst first.
+        parameter_names: the unknowns other than the points (navigation-error coefficients, radar constants).
     """
 
     solver: str
@@ -392,6 +398,7 @@ class BlockResult:
     redundancy: np.ndarray = field(repr=False)
     w: np.ndarray = field(repr=False)
     blunders: tuple[Blunder, ...] = ()
+    parameter_names: tuple[str, ...] = ()
 
     def tie_discrepancies(self, coverage: int):
         """``(k, 2)`` map differences (m) between the adjusted ground positions of each point measured on two
@@ -415,7 +422,7 @@ class _Problem:
     prior_sigma: np.ndarray
     start_points: np.ndarray
     point_key: list  # (coverage, point) of each point unknown (coverage −1 for static points)
-    strip_slices: list  # (coverage index, strip index, navigation indices, radar indices, basis time span)
+    strip_slices: list  # (coverage index, strip index, navigation indices, radar indices, flight span or None)
     observations: dict
     nadir: dict
     control: dict
@@ -448,9 +455,34 @@ def _error_basis(model, elapsed, duration, knot_spacing):
     return error_basis(model, elapsed, 0.0, duration, knot_spacing)
 
 
-def _strip_observations(strip, x, y, options, plane, radius, span):
-    """Per-observation geometry of one strip and the start map positions, with the whitening matrices; the
-    error basis is scaled to the time ``span`` (start, end) s."""
+def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spacing: float = 300.0):
+    """Basis of a strip's navigation error in the block adjustment: e(t) = values(t) @ C, ė(t) = rates(t) @ C.
+
+    Without ``flight_span``, the model's :func:`~seaice_jax.sensors.navigation.error_basis` over the strip. With
+    it, the model's basis over the whole flight (its first column, the offset, is the strip's own) followed by the
+    strip's linear deviation (t − t_mid) / duration, in metres of change over the strip.
+
+    Args:
+        times: ``(n,)`` s. strip_span, flight_span: (start, end) s.
+
+    Returns:
+        ``(values (n, q), rates (n, q))`` NumPy arrays, rates in 1/s.
+    """
+    times = np.asarray(times, float)
+    span = strip_span if flight_span is None else flight_span
+    values, rates = (np.asarray(a) for a in _error_basis(model, jnp.asarray(times - span[0]), span[1] - span[0],
+                                                         knot_spacing))
+    if flight_span is None:
+        return values, rates
+    duration = strip_span[1] - strip_span[0]
+    deviation = (times - 0.5 * (strip_span[0] + strip_span[1])) / duration
+    return (np.concatenate([values, deviation[:, None]], axis=1),
+            np.concatenate([rates, np.full((times.size, 1), 1.0 / duration)], axis=1))
+
+
+def _strip_observations(strip, x, y, options, plane, radius, flight_span):
+    """Per-observation geometry of one strip and the start map positions, with the navigation-error basis
+    (:func:`navigation_basis`)."""
     navigation = strip_navigation(strip, options.filter_window)
     n = len(x)
     size = bucket(n)  # padded, so strips of similar size share one compilation
@@ -459,8 +491,8 @@ def _strip_observations(strip, x, y, options, plane, radius, span):
                                strip.sweep_delay, strip.range_scale, look_sign(strip.look_side), plane, radius)
     times, time_per_mm, position, velocity, north, east, north_rate, east_rate, start, jacobian = (
         np.asarray(a)[:n] for a in geometry)
-    basis, rates = (np.asarray(a) for a in _error_basis(options.navigation_model, times - span[0], span[1] - span[0],
-                                                         options.knot_spacing))
+    basis, rates = navigation_basis(options.navigation_model, times, (strip.start_time, strip.end_time), flight_span,
+                                    options.knot_spacing)
     # rows without a ground solution (range errors putting a near-range point inside the flying height) are dropped
     usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
     return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
@@ -486,7 +518,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
         shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
         for j, strip in enumerate(coverage.strips):
             span = flown if flight else (strip.start_time, strip.end_time)
-            size = error_basis_size(model, *span, options.knot_spacing)
+            size = error_basis_size(model, *span, options.knot_spacing) + flight
             if q is not None and size != q:
                 raise SeaiceError(f"coverage {coverage.name!r} strip {strip.name}: the {model} model has {size} "
                                   f"coefficients here but {q} on the first strip; give all strips the same duration "
@@ -502,12 +534,12 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                     prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + [shape_sigma] * (q - 1)
                     continue
                 if component not in shared:
-                    shared[component] = list(range(len(names), len(names) + q - 1))
+                    shared[component] = list(range(len(names), len(names) + q - 2))
                     names += [f"{coverage.name} navigation {component} {term}" for term in terms[1:]]
-                    prior += [shape_sigma] * (q - 1)
-                navigation += [len(names), *shared[component]]
-                names.append(f"{label} navigation {component} offset")
-                prior.append(offset_sigma)
+                    prior += [shape_sigma] * (q - 2)
+                navigation += [len(names), *shared[component], len(names) + 1]
+                names += [f"{label} navigation {component} offset", f"{label} navigation {component} deviation"]
+                prior += [offset_sigma, options.deviation_prior]
             if options.radar_constants == "strip" or shared_radar is None:
                 radar_label = label if options.radar_constants == "strip" else "block"
                 radar = [len(names), len(names) + 1]
@@ -516,7 +548,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                           options.range_scale_prior * strip.range_scale if options.range_scale_prior is not None
                           else np.inf]
                 shared_radar = radar
-            strip_slices.append((c, j, np.array(navigation), shared_radar, span))
+            strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
     point_key, point_unknown, sums, counts = [], {}, [], []
     tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
                               "north_rate", "east_rate", "y",
@@ -527,7 +559,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
     for c, coverage in enumerate(coverages):
         m = coverage.measurements
         for j, strip in enumerate(coverage.strips):
-            _, _, navigation, radar, span = next(slices)
+            _, _, navigation, radar, flight_span = next(slices)
             rows = np.nonzero(m.strip == j)[0]
             if strip.nadir_y.size:
                 nadir["index"].append(np.tile(radar, (strip.nadir_y.size, 1)))
@@ -537,7 +569,8 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 nadir["altitude"].append(nadir_altitudes(strip))
             if rows.size == 0:
                 continue
-            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius, span)
+            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius,
+                                                      flight_span)
             for key in table:
                 tables[key].append(table[key][valid])
             tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
@@ -798,14 +831,14 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
             drift_cov.append(covariance)
     strips = []
     q = problem.q
-    for (c, j, navigation, radar, span) in problem.strip_slices:
+    for (c, j, navigation, radar, flight_span) in problem.strip_slices:
         strip = coverages[c].strips[j]
         strips.append(StripEstimate(
             coverages[c].name, strip.name, strip.start_time, strip.end_time, options.navigation_model,
             options.knot_spacing, unknowns[navigation].reshape(2, q).T,
             strip_cofactor[np.ix_(navigation, navigation)], strip.sweep_delay + unknowns[radar[0]],
             float(np.sqrt(strip_cofactor[radar[0], radar[0]])), strip.range_scale + unknowns[radar[1]],
-            float(np.sqrt(strip_cofactor[radar[1], radar[1]])), *span))
+            float(np.sqrt(strip_cofactor[radar[1], radar[1]])), *(flight_span or (None, None))))
     limit = float(critical_value(options.alpha))
     bad = np.argwhere(np.abs(w) > limit)
     order = np.argsort(-np.abs(w[bad[:, 0], bad[:, 1]])) if bad.size else []
@@ -814,7 +847,7 @@ def _result(problem, data, options, solver, coverages, n_points, unknowns, point
                      for o, k in (bad[i] for i in order))
     return BlockResult(solver, options, tuple(positions), tuple(covariances), tuple(drift), tuple(drift_cov),
                        tuple(strips), sigma0, dof, iterations, converged, problem.coverage_of, problem.strip_of,
-                       problem.point_of, ground, residuals, redundancy, w, blunders)
+                       problem.point_of, ground, residuals, redundancy, w, blunders, tuple(problem.names))
 
 
 def _drift_cross_cofactor(problem, data, cofactor, unknowns, points, first_points, second_points):

@@ -141,14 +141,25 @@ def _track_axes(x, positions):
 
 
 def _internal_correction(x, discrepancy, x_range, pieces):
-    """Piecewise cubic of the discrepancies with as many pieces (<= ``pieces``) as the tie points support."""
+    """Piecewise cubic of the discrepancies with as many pieces (<= ``pieces``) as the tie points support, as a
+    function of film x, and the number of pieces (``None, 0`` where the ties span under a tenth of the strip: a
+    constant shift then).
+
+    The joints span the tie points, not the whole strip: beyond the outermost tie the correction is held at its
+    value there. Extrapolating the cubics (or a regression line at a joint with its ties all to one side) can
+    throw the far end of a strip by tens of kilometres where the overlap with the previous strip is short.
+    """
+    low, high = float(np.min(x)), float(np.max(x))
+    if high - low < 0.1 * (x_range[1] - x_range[0]):
+        return None, 0
     for count in range(pieces, 0, -1):
-        joints = np.linspace(x_range[0], x_range[1], count + 1)
+        joints = np.linspace(low, high, count + 1)
         try:
-            return fit_piecewise_cubic(x, discrepancy, joints, half_width=np.diff(joints)[0],
-                                       degree=2 if count > 1 else 1), count
+            cubic = fit_piecewise_cubic(x, discrepancy, joints, half_width=np.diff(joints)[0],
+                                        degree=2 if count > 1 else 1)
         except SeaiceError:
             continue
+        return (lambda at, cubic=cubic: cubic(np.clip(at, low, high))), count
     return None, 0
 
 
