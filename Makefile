@@ -24,6 +24,8 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
+	$(PY) benchmarks/bench_orbit_fit.py
+	$(PY) benchmarks/bench_block.py
 
 clean:
 	rm -rf seaice-demo .pytest_cache

@@ -8,9 +8,9 @@ Unknowns:
   * the coefficients of a navigation-error model (north and east; constant, linear, Schuler or cubic B-spline,
     :func:`~seaice_jax.sensors.navigation.error_basis`), all in metres, either per strip (``scope="strip"``) or, as
     an inertial platform behaves, one continuous error per flight (``scope="flight"``: the drift and the Schuler
-    oscillation are shared by all strips of a coverage; each strip has its own offset, taking up the perturbation of
-    each turn, and a small linear deviation with a tight prior, taking up what the filtered record noise leaves;
-    sources 000 and 002);
+    oscillation are shared by all strips of a coverage, with the flight's offset at its start; each later strip has
+    its own offset with the prior of the turn perturbations accumulated before it, and a small linear deviation with
+    a tight prior, taking up what the filtered record noise leaves; sources 000 and 002);
   * per strip (or one pair for the whole block) the corrections Δc (mm) and Δf (m/mm) to the nominal sweep delay
     and range scale;
   * the map coordinates (x, y) of every tie, drift and control point, one pair per coverage (ice moves between
@@ -63,6 +63,8 @@ SOLVERS = ("auto", "dense", "schur")
 DENSE_LIMIT = 1500
 """Unknowns up to which ``solver="auto"`` uses the dense engine path."""
 _COMPONENTS = ("north", "east")
+_REFERENCE_SIGMA = 1e-3
+"""m: prior σ of the first strip's turn offset (none: the flight's own offset is the error there)."""
 
 
 @dataclass(frozen=True)
@@ -82,8 +84,11 @@ class BlockOptions:
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior).
         shape_prior: σ (m) of the other navigation coefficients: rate × strip (or flight) duration, Schuler
             amplitudes (``None``: no prior).
+        turn_prior: σ (m) of the INS perturbation of one turn (flight scope): strip k of a flight is offset from the
+            flight's curve by σ turn_prior·√k (the perturbations add up; ``None``: no prior).
         deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
-            strip; flight scope only): the low-frequency part of the record noise that the filter lets through.
+            strip; flight scope only): the low-frequency part of the record noise that the filter lets through
+            (``None``: no prior).
         sweep_delay_prior: σ of Δc, mm. range_scale_prior: σ of Δf relative to f0.
         static_points: land: one position per point for all coverages (no drift).
         solver: ``"auto"``, ``"dense"`` or ``"schur"``.
@@ -101,7 +106,8 @@ class BlockOptions:
     altimeter_sigma: float = 5.0
     offset_prior: float | None = 5000.0
     shape_prior: float | None = 3000.0
-    deviation_prior: float = 50.0
+    turn_prior: float | None = 500.0
+    deviation_prior: float | None = 50.0
     sweep_delay_prior: float | None = 2.0
     range_scale_prior: float | None = 0.02
     static_points: bool = False
@@ -459,7 +465,8 @@ def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spaci
     """Basis of a strip's navigation error in the block adjustment: e(t) = values(t) @ C, ė(t) = rates(t) @ C.
 
     Without ``flight_span``, the model's :func:`~seaice_jax.sensors.navigation.error_basis` over the strip. With
-    it, the model's basis over the whole flight (its first column, the offset, is the strip's own) followed by the
+    it: first the strip's turn offset (1), then the model's basis over the whole flight, each term but the offset
+    taken relative to its value at the flight's start (so the flight's offset is its error there), then the
     strip's linear deviation (t − t_mid) / duration, in metres of change over the strip.
 
     Args:
@@ -470,14 +477,16 @@ def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spaci
     """
     times = np.asarray(times, float)
     span = strip_span if flight_span is None else flight_span
-    values, rates = (np.asarray(a) for a in _error_basis(model, jnp.asarray(times - span[0]), span[1] - span[0],
-                                                         knot_spacing))
+    at = np.concatenate([times - span[0], [0.0]])  # the last row: the span's start
+    values, rates = (np.asarray(a) for a in _error_basis(model, jnp.asarray(at), span[1] - span[0], knot_spacing))
     if flight_span is None:
-        return values, rates
+        return values[:-1], rates[:-1]
+    values = np.concatenate([values[:-1, :1], values[:-1, 1:] - values[-1:, 1:]], axis=1)
     duration = strip_span[1] - strip_span[0]
     deviation = (times - 0.5 * (strip_span[0] + strip_span[1])) / duration
-    return (np.concatenate([values, deviation[:, None]], axis=1),
-            np.concatenate([rates, np.full((times.size, 1), 1.0 / duration)], axis=1))
+    ones, zeros = np.ones((times.size, 1)), np.zeros((times.size, 1))
+    return (np.concatenate([ones, values, deviation[:, None]], axis=1),
+            np.concatenate([zeros, rates[:-1], np.full((times.size, 1), 1.0 / duration)], axis=1))
 
 
 def _strip_observations(strip, x, y, options, plane, radius, flight_span):
@@ -510,6 +519,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
     offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
     shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
+    turn_sigma = options.turn_prior if options.turn_prior is not None else np.inf
     flight = options.navigation_scope == "flight"
     shared_radar = None
     q = None
@@ -518,7 +528,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
         shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
         for j, strip in enumerate(coverage.strips):
             span = flown if flight else (strip.start_time, strip.end_time)
-            size = error_basis_size(model, *span, options.knot_spacing) + flight
+            size = error_basis_size(model, *span, options.knot_spacing) + 2 * flight
             if q is not None and size != q:
                 raise SeaiceError(f"coverage {coverage.name!r} strip {strip.name}: the {model} model has {size} "
                                   f"coefficients here but {q} on the first strip; give all strips the same duration "
@@ -535,11 +545,13 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                     continue
                 if component not in shared:
                     shared[component] = list(range(len(names), len(names) + q - 2))
-                    names += [f"{coverage.name} navigation {component} {term}" for term in terms[1:]]
-                    prior += [shape_sigma] * (q - 2)
+                    names += [f"{coverage.name} navigation {component} {term}" for term in terms]
+                    prior += [offset_sigma] + [shape_sigma] * (q - 3)
                 navigation += [len(names), *shared[component], len(names) + 1]
-                names += [f"{label} navigation {component} offset", f"{label} navigation {component} deviation"]
-                prior += [offset_sigma, options.deviation_prior]
+                names += [f"{label} navigation {component} turn offset", f"{label} navigation {component} deviation"]
+                # the turns' perturbations add up along the flight; the first strip is the flight's reference
+                prior += [turn_sigma * np.sqrt(j) if j else _REFERENCE_SIGMA,
+                          options.deviation_prior if options.deviation_prior is not None else np.inf]
             if options.radar_constants == "strip" or shared_radar is None:
                 radar_label = label if options.radar_constants == "strip" else "block"
                 radar = [len(names), len(names) + 1]

@@ -68,12 +68,12 @@ def local_regression(x, values, at, half_width, degree=2):
         ``(value (c,), tangent (c,))``.
 
     Raises:
-        SeaiceError: naming the joint when too few points lie near it.
+        SeaiceError: naming the joint when fewer than twice the polynomial's coefficients lie near it.
     """
     near = np.abs(np.asarray(x) - at) <= half_width
-    if near.sum() <= degree:
+    if near.sum() < 2 * (degree + 1):  # twice the coefficients: a tangent from barely enough points is wild
         raise SeaiceError(f"joint at x = {at:g}: only {int(near.sum())} tie points within ±{half_width:g} for a "
-                          f"degree-{degree} local regression")
+                          f"degree-{degree} local regression (at least {2 * (degree + 1)})")
     design = np.vander(np.asarray(x)[near] - at, degree + 1, increasing=True)
     coefficients, *_ = np.linalg.lstsq(design, np.asarray(values)[near], rcond=None)
     return coefficients[0], coefficients[1]
