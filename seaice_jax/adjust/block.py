@@ -84,6 +84,8 @@ class BlockOptions:
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior).
         shape_prior: σ (m) of the other navigation coefficients: rate × strip (or flight) duration, Schuler
             amplitudes (``None``: no prior).
+        schuler_prior: σ (m) of the Schuler sine and cosine amplitudes if they differ from ``shape_prior`` (the
+            INS drift over a short flight is far smaller than its Schuler oscillation).
         turn_prior: σ (m) of the INS perturbation of one turn (flight scope): strip k of a flight is offset from the
             flight's curve by σ turn_prior·√k (the perturbations add up; ``None``: no prior).
         deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
@@ -106,6 +108,7 @@ class BlockOptions:
     altimeter_sigma: float = 5.0
     offset_prior: float | None = 5000.0
     shape_prior: float | None = 3000.0
+    schuler_prior: float | None = None
     turn_prior: float | None = 500.0
     deviation_prior: float | None = 50.0
     sweep_delay_prior: float | None = 2.0
@@ -519,6 +522,9 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
     offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
     shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
+    schuler_sigma = options.schuler_prior if options.schuler_prior is not None else shape_sigma
+    shape = {"constant": [], "linear": [shape_sigma], "schuler": [shape_sigma, schuler_sigma, schuler_sigma]}.get(
+        model)  # prior σ of the coefficients after the offset (the spline's values all take the offset's)
     turn_sigma = options.turn_prior if options.turn_prior is not None else np.inf
     flight = options.navigation_scope == "flight"
     shared_radar = None
@@ -541,12 +547,12 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 if not flight:
                     navigation += range(len(names), len(names) + q)
                     names += [f"{label} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + [shape_sigma] * (q - 1)
+                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shape
                     continue
                 if component not in shared:
                     shared[component] = list(range(len(names), len(names) + q - 2))
                     names += [f"{coverage.name} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] + [shape_sigma] * (q - 3)
+                    prior += [offset_sigma] + shape
                 navigation += [len(names), *shared[component], len(names) + 1]
                 names += [f"{label} navigation {component} turn offset", f"{label} navigation {component} deviation"]
                 # the turns' perturbations add up along the flight; the first strip is the flight's reference
