@@ -148,7 +148,7 @@ def test_without_control_or_priors_the_datum_defect_is_named(small):
     an exact defect, but its σ says the block is free.)"""
     scenario, options = small
     free = replace(options, navigation_model="linear", navigation_scope="strip", offset_prior=None, shape_prior=None,
-                   turn_prior=None)
+                   turn_prior=None, solver="schur")
     none = tuple(replace(c, control={}) for c in scenario.coverages)
     with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's .*shift") as error:
         simultaneous_block(none, scenario.plane, len(scenario.kinds), free)
@@ -157,13 +157,15 @@ def test_without_control_or_priors_the_datum_defect_is_named(small):
     with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's rotation"):
         simultaneous_block(one, scenario.plane, len(scenario.kinds), free)
     simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds), free)  # three stations fix it
-    flight = replace(free, navigation_scope="flight")
+    flight = replace(free, navigation_scope="flight", solver="dense")
     loose = simultaneous_block(none, scenario.plane, len(scenario.kinds), flight)
     seen = np.isfinite(loose.positions[0]).all(axis=1)
     assert np.sqrt(np.diagonal(loose.covariances[0][seen], axis1=1, axis2=2)).min() > 100_000.0  # metres
     result = simultaneous_block(one, scenario.plane, len(scenario.kinds), flight)
     sigma = np.sqrt(np.diagonal(result.covariances[0][seen], axis1=1, axis2=2))
     assert result.converged and np.isfinite(sigma).all() and sigma.max() < 1000.0
+    with pytest.raises(SeaiceError, match="Schur-complement solve broke down"):
+        simultaneous_block(none, scenario.plane, len(scenario.kinds), replace(flight, solver="schur"))
 
 
 def test_flight_scope_shares_the_drift_and_schuler_terms_of_a_coverage(small):

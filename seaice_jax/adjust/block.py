@@ -762,6 +762,10 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
             iterations += 1
             small = max(float(jnp.max(jnp.abs(step))), float(jnp.max(jnp.abs(point_step)))) < options.tolerance
             converged = small or float(decrease) < options.tolerance**2
+            if not (np.isfinite(float(decrease)) and bool(jnp.all(jnp.isfinite(point_step)))):
+                raise SeaiceError("the Schur-complement solve broke down (the reduced normal matrix is not "
+                                  "numerically positive definite: the block is held only weakly, e.g. no control and "
+                                  "no navigation priors); add control points or priors, or use solver='dense'")
         cofactors = _schur_statistics(unknowns, points, data)
     return _result(problem, data, options, solver, coverages, n_points, unknowns, points, iterations, converged,
                    cofactors)
