@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from seaice_jax.adjust.block import BlockOptions, simultaneous_block  # noqa: E402
 from seaice_jax.adjust.sequential import sequential_block  # noqa: E402
+from seaice_jax.sensors.strips import rectify  # noqa: E402
 from seaice_jax.simulate.aircraft import ErrorModel, aidjex_scenario, prudhoe_scenario  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")
@@ -33,10 +34,16 @@ SCOPES = {"simultaneous per strip": "strip", "simultaneous": "flight"}
 
 
 def with_control(scenario, count):
-    """The scenario with only the first ``count`` control points of each coverage kept as control."""
-    coverages = tuple(replace(c, control={p: c.control[p] for p in sorted(c.control)[:count]})
-                      for c in scenario.coverages)
-    return replace(scenario, coverages=coverages)
+    """The scenario with only the first ``count`` control points of each coverage kept as control, of those with a
+    ground solution from the recorded navigation and nominal radar constants (a point imaged inside the flying
+    height's range can hold nothing)."""
+    coverages = []
+    for c in scenario.coverages:
+        rectified = rectify(c.strips, c.measurements, filter_window=None)
+        solvable = {int(p) for p in c.measurements.point[np.isfinite(rectified).all(axis=1)]}
+        kept = [p for p in sorted(c.control) if p in solvable][:count]
+        coverages.append(replace(c, control={p: c.control[p] for p in kept}))
+    return replace(scenario, coverages=tuple(coverages))
 
 
 def instrument_priors(scenario):
@@ -95,11 +102,11 @@ def aidjex_metrics(scenario, outcome):
     return metrics
 
 
-def land_metrics(scenario, outcome, control_count):
+def land_metrics(scenario, outcome):
     """Per method: position error of the land points that are not control, on each day, and the apparent drift
     (day 2 minus day 1: zero on land)."""
     truth = scenario.coverages[0].truth
-    check = np.arange(len(truth)) >= control_count
+    check = ~np.isin(np.arange(len(truth)), [p for c in scenario.coverages for p in c.control])
     metrics = {}
     for method, (positions, ties, result) in outcome.items():
         error = np.concatenate([positions[c][check] - truth[check] for c in range(2)])
@@ -214,7 +221,7 @@ def main():
         full = prudhoe_scenario(3000 + seed)
         for k, count in enumerate(counts):
             scenario = with_control(full, count)
-            land_sweep[k].append(land_metrics(scenario, run_methods(scenario), count))
+            land_sweep[k].append(land_metrics(scenario, run_methods(scenario)))
         print(f"land: {seed + 1}/{args.sweep}", flush=True)
 
     sweep_figure(RESULTS / "sequential_vs_simultaneous_drift.png", counts, aidjex_sweep,

@@ -179,3 +179,16 @@ def test_flight_scope_shares_the_drift_and_schuler_terms_of_a_coverage(small):
         first.start_time, second.end_time)
     with pytest.raises(SeaiceError, match="spline navigation model is per strip"):
         BlockOptions(navigation_model="spline")
+
+
+def test_a_control_point_without_ground_solution_is_named_not_dropped(small):
+    """A control point whose every measurement lies inside the flying height's range holds nothing; silently
+    dropping it would leave the block on its priors alone."""
+    scenario, options = small
+    coverage = scenario.coverages[0]
+    m = coverage.measurements
+    y = np.where(m.point == 0, 0.0, m.y)  # slant range (0 + c) f = 2.5 km < 10 km altitude
+    bad = replace(coverage, measurements=replace(m, y=y))
+    with pytest.raises(SeaiceError, match=r"coverage 'day 0': control point 0 is measured \(strip S0\d\) but has no "
+                                          r"ground solution"):
+        simultaneous_block((bad, scenario.coverages[1]), scenario.plane, len(scenario.kinds), options)

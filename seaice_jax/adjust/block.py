@@ -572,6 +572,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                               "north_rate", "east_rate", "y",
                               "sweep_delay", "range_scale", "sign", "time_per_mm")}
     coverage_of, strip_of, point_of = [], [], []
+    unsolved = set()  # (coverage, point, strip) of measurements without a ground solution at the start
     nadir = {k: [] for k in ("index", "y", "sweep_delay", "range_scale", "altitude")}
     slices = iter(strip_slices)
     for c, coverage in enumerate(coverages):
@@ -589,6 +590,7 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 continue
             table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius,
                                                       flight_span)
+            unsolved.update((c, int(p), strip.name) for p in m.point[rows[~valid]])
             for key in table:
                 tables[key].append(table[key][valid])
             tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
@@ -608,6 +610,12 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
                 point_of.append(int(p))
     if not point_key:
         raise SeaiceError("no image measurement gives a ground point: nothing to adjust")
+    for c, p, strip_name in sorted(unsolved):
+        if p in coverages[c].control and (-1 if options.static_points else c, p) not in point_unknown:
+            raise SeaiceError(f"coverage {coverages[c].name!r}: control point {p} is measured (strip {strip_name}) "
+                              "but has no ground solution with the nominal radar constants and the navigation (a "
+                              "slant range shorter than the flying height?): nothing would hold it; correct or "
+                              "remove its measurement")
     observations = {k: np.concatenate(v) for k, v in tables.items()}
     observations["point"] = observations["point"].astype(int)
     nadir = {k: np.concatenate(v) if v else np.zeros((0, 2) if k == "index" else 0) for k, v in nadir.items()}
