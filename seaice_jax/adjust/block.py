@@ -57,7 +57,7 @@ from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_eas
 from seaice_jax.geometry.range_doppler import _ground_point, look_sign
 from seaice_jax.sensors.navigation import ERROR_MODELS, error_basis, error_basis_size
 from seaice_jax.sensors.slar import imaging_time
-from seaice_jax.sensors.strips import nadir_altitudes, strip_navigation
+from seaice_jax.sensors.strips import image_to_ground, nadir_altitudes, strip_navigation
 
 SOLVERS = ("auto", "dense", "schur")
 DENSE_LIMIT = 1500
@@ -449,8 +449,7 @@ def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
     (north, east), (north_rate, east_rate) = jax.jvp(north_east, (position,), (velocity,))
 
     def to_map(xy):
-        s, v = navigation(imaging_time(xy[0], mark_x, mark_times))
-        g = _ground_point(s, v, (xy[1] + sweep_delay) * range_scale, radius, sign, 0.0, 0.0)
+        g = image_to_ground(navigation, mark_x, mark_times, xy[0], xy[1], sweep_delay, range_scale, sign, radius)
         return jnp.stack(plane.forward(*latitude_longitude(g)))
 
     image = jnp.stack([x, y], axis=1)

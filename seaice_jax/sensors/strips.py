@@ -97,7 +97,7 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
         c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
         f = strip.range_scale if range_scale is None else range_scale[j]
         size = bucket(rows.size)  # padded: strips of similar size share one compilation
-        ground = _rectify_strip(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
+        ground = image_to_ground(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
                                 jnp.asarray(pad(measurements.x[rows], size, measurements.x[rows[0]])),
                                 jnp.asarray(pad(measurements.y[rows], size, measurements.y[rows[0]])), c, f,
                                 look_sign(strip.look_side), radius)
@@ -106,8 +106,10 @@ def rectify(strips, measurements: Measurements, filter_window: float | None = 18
 
 
 @jax.jit
-def _rectify_strip(navigation, mark_x, mark_times, x, y, sweep_delay, range_scale, sign, radius):
-    """Ground points ``(n, 3)`` of image points of one strip (eqs A1, A2, A5); NaN rows where there is none."""
+def image_to_ground(navigation, mark_x, mark_times, x, y, sweep_delay, range_scale, sign, radius):
+    """Ground points ``(..., 3)`` (m, Earth-centred) of image points ``x, y`` (mm, any shape) of one strip: time by
+    eq. A1, slant range by eq. A2, the ground point by eq. A5 on the ``navigation`` trajectory; ``sign`` +1 right,
+    −1 left looking. NaN where there is no ground point."""
     position, velocity = navigation(imaging_time(x, mark_x, mark_times))
     return _ground_point(position, velocity, slant_range(y, sweep_delay, range_scale), radius, sign, 0.0, 0.0)
 
