@@ -63,7 +63,8 @@ def _block(args) -> int:
     from seaice_jax.radar_block import run_block
 
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
-                           knot_spacing=args.knot_spacing, radar_constants=args.radar_constants)
+                           knot_spacing=args.knot_spacing, radar_constants=args.radar_constants,
+                           take_off_time=args.take_off_time)
     run = run_block(args.project, args.out, args.method, options)
     print(run.report)
     print(f"wrote {len(run.files)} files into {args.out}")
@@ -121,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="flight: one error curve per coverage, an offset per strip (the INS error runs on "
                             "through the turns); strip: every strip its own curve (needed by the spline model)")
     block.add_argument("--knot-spacing", type=float, default=300.0, help="s, of the spline model")
+    block.add_argument("--take-off-time", type=float, default=None,
+                       help="s on the strips' clock when the flights took off: the INS error curve then starts "
+                            "there (drift from zero, offset = alignment error); default: from the first strip")
     block.add_argument("--radar-constants", choices=["strip", "shared"], default="strip",
                        help="sweep delay and range scale per strip or one pair for the block")
     block.add_argument("--out", required=True, help="output folder")

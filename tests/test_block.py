@@ -192,3 +192,29 @@ def test_a_control_point_without_ground_solution_is_named_not_dropped(small):
     with pytest.raises(SeaiceError, match=r"coverage 'day 0': control point 0 is measured \(strip S0\d\) but has no "
                                           r"ground solution"):
         simultaneous_block((bad, scenario.coverages[1]), scenario.plane, len(scenario.kinds), options)
+
+
+def test_from_take_off_the_flight_basis_holds_the_simulated_ins_error_with_no_offset():
+    """The simulator's INS error (drift from take-off plus a Schuler oscillation under way) is the flight basis
+    from take-off exactly, with a zero offset (no alignment error) and the Schuler terms carrying the error at
+    take-off; a take-off after the first strip is refused by name."""
+    from seaice_jax.adjust.block import navigation_basis
+    from seaice_jax.simulate.aircraft import navigation_error
+
+    times = np.linspace(3600.0, 3600.0 + 7200.0, 400)  # s after take-off
+    truth, _ = navigation_error(times, SYSTEMATIC, np.zeros(2), drift_direction=0.3, schuler_phase=1.1)
+    basis, _ = navigation_basis("schuler", times, (times[0], times[-1]), (0.0, times[-1]))
+    flight = basis[:, 1:5]  # the flight's offset, drift, Schuler sine and cosine (not the strip's own terms)
+    coefficients, *_ = np.linalg.lstsq(flight, truth, rcond=None)
+    np.testing.assert_allclose(flight @ coefficients, truth, atol=1e-6)
+    np.testing.assert_allclose(coefficients[0], 0.0, atol=1e-6)  # no alignment error at take-off
+    np.testing.assert_allclose(flight[0, 1], 3600.0 / 10800.0)  # the drift grows from zero at take-off
+    assert np.abs(coefficients[2:4]).max() > 100.0  # the Schuler terms hold the error at take-off
+
+
+def test_a_take_off_after_the_first_strip_is_refused(small):
+    scenario, options = small
+    late = scenario.coverages[0].strips[0].start_time + 1.0
+    with pytest.raises(SeaiceError, match=r"coverage 'day 0': take_off_time .* is after its first strip starts"):
+        simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds),
+                           replace(options, take_off_time=late))

@@ -86,6 +86,10 @@ class BlockOptions:
             amplitudes (``None``: no prior).
         schuler_prior: σ (m) of the Schuler sine and cosine amplitudes if they differ from ``shape_prior`` (the
             INS drift over a short flight is far smaller than its Schuler oscillation).
+        take_off_time: s on the strips' clock when the flights took off (flight scope; ``None``: unknown). The
+            flight's curve then starts at take-off: its offset is the INS alignment error (``offset_prior``) and its
+            drift grows from zero there, so the drift accumulated before the first strip is tied to the drift
+            the ties see (without it the flight's offset at its first strip has to carry that drift).
         turn_prior: σ (m) of the INS perturbation of one turn (flight scope): strip k of a flight is offset from the
             flight's curve by σ turn_prior·√k (the perturbations add up; ``None``: no prior).
         deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
@@ -109,6 +113,7 @@ class BlockOptions:
     offset_prior: float | None = 5000.0
     shape_prior: float | None = 3000.0
     schuler_prior: float | None = None
+    take_off_time: float | None = None
     turn_prior: float | None = 500.0
     deviation_prior: float | None = 50.0
     sweep_delay_prior: float | None = 2.0
@@ -467,9 +472,10 @@ def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spaci
     """Basis of a strip's navigation error in the block adjustment: e(t) = values(t) @ C, ė(t) = rates(t) @ C.
 
     Without ``flight_span``, the model's :func:`~seaice_jax.sensors.navigation.error_basis` over the strip. With
-    it: first the strip's turn offset (1), then the model's basis over the whole flight, each term but the offset
-    taken relative to its value at the flight's start (so the flight's offset is its error there), then the
-    strip's linear deviation (t − t_mid) / duration, in metres of change over the strip.
+    it: first the strip's turn offset (1), then the model's basis over the whole flight with the drift term taken
+    relative to its value at the flight's start (the drift grows from there; the Schuler sine and cosine stay as
+    they are, an oscillation already under way), then the strip's linear deviation (t − t_mid) / duration, in
+    metres of change over the strip.
 
     Args:
         times: ``(n,)`` s. strip_span, flight_span: (start, end) s.
@@ -483,7 +489,7 @@ def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spaci
     values, rates = (np.asarray(a) for a in _error_basis(model, jnp.asarray(at), span[1] - span[0], knot_spacing))
     if flight_span is None:
         return values[:-1], rates[:-1]
-    values = np.concatenate([values[:-1, :1], values[:-1, 1:] - values[-1:, 1:]], axis=1)
+    values = values[:-1] - np.where(np.arange(values.shape[1]) == 1, values[-1], 0.0)  # column 1: the drift
     duration = strip_span[1] - strip_span[0]
     deviation = (times - 0.5 * (strip_span[0] + strip_span[1])) / duration
     ones, zeros = np.ones((times.size, 1)), np.zeros((times.size, 1))
@@ -530,6 +536,11 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
     q = None
     for c, coverage in enumerate(coverages):
         flown = (min(s.start_time for s in coverage.strips), max(s.end_time for s in coverage.strips))
+        if flight and options.take_off_time is not None:
+            if options.take_off_time > flown[0]:
+                raise SeaiceError(f"coverage {coverage.name!r}: take_off_time {options.take_off_time} s is after its "
+                                  f"first strip starts ({flown[0]} s)")
+            flown = (options.take_off_time, flown[1])
         shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
         for j, strip in enumerate(coverage.strips):
             span = flown if flight else (strip.start_time, strip.end_time)
