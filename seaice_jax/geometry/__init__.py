@@ -19,8 +19,10 @@ from seaice_jax.geometry.earth import (
     wrap_angle,
 )
 from seaice_jax.geometry.projections import (
+    Equirectangular,
     ImageGrid,
     LambertConformalConic,
+    MapGrid,
     PolarStereographic,
     TangentPlane,
     nsidc_polar_stereographic,
@@ -40,7 +42,8 @@ __all__ = [
     "EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
     "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic", "geodetic_to_ecef",
     "great_circle_distance", "latitude_longitude", "north_east", "sphere_to_cartesian", "unit_vector", "wrap_angle",
-    "ImageGrid", "LambertConformalConic", "PolarStereographic", "TangentPlane", "nsidc_polar_stereographic",
+    "Equirectangular", "ImageGrid", "LambertConformalConic", "MapGrid", "PolarStereographic", "TangentPlane",
+    "nsidc_polar_stereographic",
     "LEFT", "RIGHT", "doppler_residual", "ground_point", "imaging_time_and_range", "incidence_angle",
     "SATELLITES", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit", "CircularTrajectory",
 ]

@@ -2,11 +2,14 @@
 
 * :class:`TangentPlane`: orthographic projection onto the plane tangent at the centre of the area (the map frame
   of source 000), on the sphere.
+* :class:`Equirectangular`: metric plate carrée, true scale at a reference latitude (PROJ ``eqc``).
 * :class:`ImageGrid`: the equi-rectangular image grid of source 001 (section 3.3 footnote, VHR3): reference
   latitude/longitude at a reference pixel/line, pixel sizes in metres, longitude scaled at the reference latitude.
 * :class:`LambertConformalConic` and :class:`PolarStereographic`: on a sphere or an ellipsoid (Snyder 1987,
   *Map Projections — A Working Manual*, USGS PP 1395, eqs 15-1 to 15-11 and 21-33 to 21-40). The usual sea-ice
   grids (NSIDC EPSG:3413 and EPSG:3976) come from :func:`nsidc_polar_stereographic`.
+
+:class:`MapGrid` is a raster in any of them (remapped images, GeoTIFF, CF-NetCDF grids).
 
 Angles in radians, lengths in metres. Latitude/longitude are on the figure the projection is defined on (the
 sphere for the spherical ones, geodetic for an ellipsoid; see :mod:`seaice_jax.geometry.earth` for conversions).
@@ -58,6 +61,27 @@ class TangentPlane(eqx.Module):
         return jnp.where(h2 >= 0.0, latitude, jnp.nan), jnp.where(h2 >= 0.0, longitude, jnp.nan)
 
 
+class Equirectangular(eqx.Module):
+    """Equi-rectangular (plate carrée with true scale at the reference latitude), metric, on the sphere:
+    x = R (λ − λ_ref) cos φ_ref, y = R (φ − φ_ref). Same as PROJ ``eqc`` with ``lat_ts = lat_0 = φ_ref``."""
+
+    reference_latitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    reference_longitude: Float[Array, ""] = eqx.field(converter=_as_float)
+    radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
+
+    def forward(self, latitude, longitude):
+        """``(x east, y north)`` metres of ``(latitude, longitude)`` radians."""
+        x = self.radius * _wrap(_as_float(longitude) - self.reference_longitude) * jnp.cos(self.reference_latitude)
+        y = self.radius * (_as_float(latitude) - self.reference_latitude)
+        return jnp.broadcast_arrays(x, y)
+
+    def inverse(self, x, y):
+        """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
+        latitude = self.reference_latitude + _as_float(y) / self.radius
+        longitude = _wrap(self.reference_longitude + _as_float(x) / (self.radius * jnp.cos(self.reference_latitude)))
+        return jnp.broadcast_arrays(latitude, longitude)
+
+
 class ImageGrid(eqx.Module):
     """Equi-rectangular image grid (source 001): 1-based pixel (columns, east) and line (rows, south).
 
@@ -75,11 +99,14 @@ class ImageGrid(eqx.Module):
     pixel_height: Float[Array, ""] = eqx.field(converter=_as_float)
     radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
 
+    @property
+    def projection(self) -> Equirectangular:
+        """The metric projection of the grid."""
+        return Equirectangular(self.reference_latitude, self.reference_longitude, self.radius)
+
     def map_xy(self, latitude, longitude):
         """Metric map coordinates ``(x east, y north)`` relative to the reference point."""
-        x = self.radius * _wrap(_as_float(longitude) - self.reference_longitude) * jnp.cos(self.reference_latitude)
-        y = self.radius * (_as_float(latitude) - self.reference_latitude)
-        return jnp.broadcast_arrays(x, y)
+        return self.projection.forward(latitude, longitude)
 
     def forward(self, latitude, longitude):
         """``(pixel, line)`` (fractional, 1-based) of ``(latitude, longitude)`` radians."""
@@ -90,9 +117,68 @@ class ImageGrid(eqx.Module):
         """``(latitude, longitude)`` radians of fractional 1-based ``(pixel, line)``."""
         x = (_as_float(pixel) - self.reference_pixel) * self.pixel_width
         y = (self.reference_line - _as_float(line)) * self.pixel_height
-        latitude = self.reference_latitude + y / self.radius
-        longitude = _wrap(self.reference_longitude + x / (self.radius * jnp.cos(self.reference_latitude)))
-        return jnp.broadcast_arrays(latitude, longitude)
+        return self.projection.inverse(x, y)
+
+
+class MapGrid(eqx.Module):
+    """A raster in a metric map projection: rows run south (top row first), columns east.
+
+    Pixel centres: x = x_first + column · pixel_width, y = y_first − row · pixel_height (0-based row, column).
+    ``projection`` is any projection here with metric ``forward``/``inverse`` (:class:`PolarStereographic`,
+    :class:`Equirectangular`, :class:`LambertConformalConic`, :class:`TangentPlane`).
+
+    Attributes:
+        x_first, y_first: m, centre of the top-left pixel. pixel_width, pixel_height: m.
+        n_rows, n_columns: raster shape.
+    """
+
+    projection: eqx.Module
+    x_first: Float[Array, ""] = eqx.field(converter=_as_float)
+    y_first: Float[Array, ""] = eqx.field(converter=_as_float)
+    pixel_width: Float[Array, ""] = eqx.field(converter=_as_float)
+    pixel_height: Float[Array, ""] = eqx.field(converter=_as_float)
+    n_rows: int = eqx.field(static=True, default=256)
+    n_columns: int = eqx.field(static=True, default=256)
+
+    def __check_init__(self):
+        if self.n_rows < 1 or self.n_columns < 1:
+            raise ValueError(f"a map grid needs at least one row and column, got {self.n_rows} x {self.n_columns}")
+
+    @classmethod
+    def centred(cls, projection, latitude, longitude, pixel_width, pixel_height, n_rows, n_columns):
+        """The grid of ``n_rows`` x ``n_columns`` pixels centred on ``(latitude, longitude)`` radians."""
+        x, y = projection.forward(latitude, longitude)
+        return cls(projection, x - 0.5 * (n_columns - 1) * pixel_width, y + 0.5 * (n_rows - 1) * pixel_height,
+                   pixel_width, pixel_height, n_rows, n_columns)
+
+    @classmethod
+    def from_image_grid(cls, grid: ImageGrid, n_rows: int, n_columns: int):
+        """The raster of source 001's equi-rectangular image grid (pixel 1, line 1 at the top left)."""
+        return cls(grid.projection, (1.0 - grid.reference_pixel) * grid.pixel_width,
+                   (grid.reference_line - 1.0) * grid.pixel_height, grid.pixel_width, grid.pixel_height, n_rows,
+                   n_columns)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.n_rows, self.n_columns
+
+    def xy(self):
+        """Map coordinates ``(x, y)`` of every pixel centre, each ``(n_rows, n_columns)`` m."""
+        x = self.x_first + self.pixel_width * jnp.arange(self.n_columns, dtype=float)
+        y = self.y_first - self.pixel_height * jnp.arange(self.n_rows, dtype=float)
+        return jnp.meshgrid(x, y)
+
+    def latitude_longitude(self):
+        """``(latitude, longitude)`` radians of every pixel centre, each ``(n_rows, n_columns)``."""
+        return self.projection.inverse(*self.xy())
+
+    def to_xy(self, row, column):
+        """Map coordinates (m) of fractional 0-based ``(row, column)``."""
+        return (self.x_first + self.pixel_width * _as_float(column), self.y_first - self.pixel_height * _as_float(row))
+
+    def to_pixel(self, x, y):
+        """Fractional 0-based ``(row, column)`` of map coordinates (m)."""
+        return (self.y_first - _as_float(y)) / self.pixel_height, (_as_float(x) - self.x_first) / self.pixel_width
 
 
 def _eccentricity(flattening):

@@ -1,8 +1,13 @@
-"""Simulated satellite images with known truth (grows into full image sequences)."""
+"""Simulated satellite images with known truth: single images with control points for the orbit fit, and
+sequences of AVHRR-like images of moving pack ice (:func:`simulate_sequence`) for remapping, tracking and films."""
+
+from dataclasses import dataclass
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from seaice_jax.adjust.multi_image import ImageObservations
 from seaice_jax.adjust.orbit_fit import ControlPoints
@@ -72,3 +77,278 @@ def overlapping_pair(rng: np.random.Generator, primary_first: int = 6, primary_s
     images = [ImageObservations("A", first.orbit, "south", primary_a, ids, pixel, scan, pointing_m),
               ImageObservations("B", second.orbit, "south", primary_b, ids, pixel_b, scan_b, pointing_m)]
     return images, (first, second)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Image sequences: a region of land, fast ice and moving pack ice seen by successive passes
+# ---------------------------------------------------------------------------------------------------------------
+
+DAY = 86400.0
+
+
+def _waves(rng, count, shortest, longest):
+    """Random plane waves: wave vectors ``(count, 2)`` rad/m, phases and amplitudes (normalised to unit RMS)."""
+    wavelength = np.exp(rng.uniform(np.log(shortest), np.log(longest), count))
+    angle = rng.uniform(0.0, np.pi, count)
+    vectors = (2 * np.pi / wavelength)[:, None] * np.stack([np.cos(angle), np.sin(angle)], 1)
+    amplitude = np.sqrt(wavelength / longest)  # more energy in the long waves (floes larger than their cracks)
+    return jnp.asarray(vectors), jnp.asarray(rng.uniform(0, 2 * np.pi, count)), jnp.asarray(
+        amplitude * np.sqrt(2.0 / np.sum(amplitude**2)))
+
+
+def _field(waves, xi):
+    """Sum of plane waves at points ``xi (..., 2)`` m: a smooth random field of unit RMS."""
+    vectors, phases, amplitudes = waves
+    return jnp.sum(amplitudes * jnp.cos(xi @ vectors.T + phases), axis=-1)
+
+
+class IceScene(eqx.Module):
+    """The ground truth of a region: land behind a meandering coastline, a band of fast ice, pack ice moving with
+    an affine velocity field, all as brightness (0-1) in a local map projection.
+
+    Pack ice is a material texture: the floe that is at ``X`` at time 0 is at ``X + t (v + G (X − X0))`` at time
+    ``t`` s (velocity ``v`` m/s at the scene's centre ``X0``, velocity gradient ``G`` 1/s), so its velocity is
+    constant and the field is exactly affine. Floes are bright, leads dark. Land and fast ice do not move.
+
+    Attributes:
+        projection: the metric map projection (x, y in metres) the scene is defined in.
+        centre: ``(2,)`` m, map coordinates of the scene's centre.
+        coast_normal: ``(2,)`` unit vector from sea to land. coast_distance: m from the centre to the mean
+            coastline along it. fast_ice_width: m.
+        velocity: ``(2,)`` m/s at the centre (map x, y). velocity_gradient: ``(2, 2)`` 1/s, ∂(u, v)/∂(x, y).
+    """
+
+    projection: eqx.Module
+    centre: Float[Array, " 2"]
+    coast_normal: Float[Array, " 2"]
+    coast_distance: Float[Array, ""]
+    fast_ice_width: Float[Array, ""]
+    velocity: Float[Array, " 2"]
+    velocity_gradient: Float[Array, "2 2"]
+    ice_waves: tuple
+    detail_waves: tuple
+    land_waves: tuple
+    coast_waves: tuple
+
+    def displacement(self, xy, time):
+        """Displacement (m) by ``time`` s of the pack ice that is at ``xy (..., 2)`` m at time 0 (zero on land
+        and fast ice is not applied here: see :meth:`is_pack`)."""
+        return time * (self.velocity + (jnp.asarray(xy) - self.centre) @ self.velocity_gradient.T)
+
+    def material_position(self, xy, time):
+        """Where the pack ice at ``xy (..., 2)`` at ``time`` s was at time 0 (the inverse of the motion)."""
+        matrix = jnp.eye(2) + time * self.velocity_gradient
+        shifted = jnp.asarray(xy) - self.centre - time * self.velocity
+        return self.centre + jnp.linalg.solve(matrix, shifted.reshape(-1, 2).T).T.reshape(shifted.shape)
+
+    def coast_offset(self, xy):
+        """Signed distance-like coordinate (m) toward land from the coastline (> 0 on land)."""
+        xi = jnp.asarray(xy) - self.centre
+        along = xi @ jnp.array([-self.coast_normal[1], self.coast_normal[0]])
+        vectors, phases, amplitudes = self.coast_waves
+        meander = jnp.sum(amplitudes * jnp.cos(along[..., None] * vectors[:, 0] + phases), axis=-1)
+        return xi @ self.coast_normal - self.coast_distance - meander
+
+    def is_pack(self, xy):
+        """True where ``xy`` is seaward of the fast ice."""
+        return self.coast_offset(xy) < -self.fast_ice_width
+
+    def brightness(self, xy, time, clouds=None):
+        """Brightness 0-1 at map positions ``xy (..., 2)`` m at ``time`` s; ``clouds``: ``(centres (c, 2) m,
+        radii (c,) m)`` of cloud patches (flat, bright, opaque at their centres)."""
+        xy = jnp.asarray(xy, float)
+        material = self.material_position(xy, time)
+        floes = jax.nn.sigmoid((_field(self.ice_waves, material) - 0.3) / 0.12)
+        pack = 0.12 + 0.68 * floes + 0.06 * _field(self.detail_waves, material)
+        land = 0.5 + 0.12 * _field(self.land_waves, xy)
+        fast = 0.86 + 0.03 * _field(self.detail_waves, xy)
+        offset = self.coast_offset(xy)
+        on_land = jax.nn.sigmoid(offset / 500.0)
+        on_fast = jax.nn.sigmoid((offset + self.fast_ice_width) / 500.0)
+        value = on_land * land + (1 - on_land) * (on_fast * fast + (1 - on_fast) * pack)
+        if clouds is not None:
+            centres, radii = (jnp.asarray(a, float) for a in clouds)
+            distance2 = jnp.sum((xy[..., None, :] - centres) ** 2, axis=-1) / radii**2
+            opacity = jnp.clip(jnp.max(jnp.exp(-0.5 * distance2**2) * 1.6, axis=-1), 0.0, 1.0)
+            value = (1 - opacity) * value + opacity * 0.93
+        return value
+
+
+def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity=(0.06, -0.03),
+              velocity_gradient=((2e-7, 1e-7), (-1e-7, -1e-7)), feature_size=12_000.0,
+              projection=None) -> IceScene:
+    """A Lancaster-Sound-like scene: land to the north, 40 km of fast ice, pack ice moving ~6 km/day.
+
+    Args:
+        latitude, longitude: degrees of the centre. velocity: m/s (map x, y) at the centre.
+        velocity_gradient: 1/s. feature_size: m, the smallest floe and lead widths (keep above two pixels of the
+            images and maps the scene is seen in). projection: metric map projection (default NSIDC EPSG:3413).
+    """
+    from seaice_jax.geometry.projections import nsidc_polar_stereographic
+
+    projection = projection or nsidc_polar_stereographic("north")
+    centre = jnp.stack(projection.forward(np.radians(latitude), np.radians(longitude)))
+    # the coast runs roughly east-west in geographic terms: the land direction is map "north" at the centre
+    lat, lon = np.radians(latitude), np.radians(longitude)
+    north = jnp.stack(projection.forward(lat + 1e-4, lon)) - centre
+    coast_normal = north / jnp.linalg.norm(north)
+    coast_waves = _waves(rng, 4, 60_000.0, 300_000.0)
+    coast_waves = (coast_waves[0] * jnp.array([1.0, 0.0]), coast_waves[1], coast_waves[2] * 15_000.0)
+    return IceScene(projection, centre, coast_normal, jnp.asarray(150_000.0), jnp.asarray(40_000.0),
+                    jnp.asarray(velocity, float), jnp.asarray(velocity_gradient, float),
+                    _waves(rng, 40, 2 * feature_size, 12 * feature_size), _waves(rng, 20, feature_size,
+                                                                                 3 * feature_size),
+                    _waves(rng, 30, feature_size, 10 * feature_size), coast_waves)
+
+
+def place_pass(template: ScanModel, latitude, longitude, iterations: int = 8) -> ScanModel:
+    """The template's pass moved (ascending node and orbital angle) so that its image centre falls on
+    ``(latitude, longitude)`` radians: Newton on the two unknowns, autodiff Jacobian."""
+    centre_pixel, centre_scan = 0.5 * (1 + template.n_pixels), 0.5 * (1 + template.n_scans)
+    target = jnp.array([latitude, longitude], float)
+
+    def misfit(unknowns):
+        model = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), template,
+                            replace=(unknowns[0], unknowns[1]))
+        lat, lon = model._forward(centre_pixel, centre_scan)
+        return jnp.array([lat - target[0], jnp.angle(jnp.exp(1j * (lon - target[1])))])
+
+    unknowns = jnp.array([template.ascending_node, template.orbital_angle_first])
+    for _ in range(iterations):
+        unknowns = unknowns - jnp.linalg.solve(jax.jacfwd(misfit)(unknowns), misfit(unknowns))
+    return eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), template,
+                       replace=(unknowns[0], unknowns[1]))
+
+
+class CameraDistortion(eqx.Module):
+    """The re-digitizing video camera of source 001 (section 3.3): radial lens distortion and a non-square frame.
+
+    A digitized pixel ``(u, v)`` (1-based column, row of the camera frame) shows the hardcopy image's point
+    ``(pixel, scan)`` = centre + (1 + k r²) ((u − u_c) / aspect, v − v_c), r² in units of the frame's half
+    height squared. ``aspect`` 4/3: the camera's 4:3 frame spreads the square image over 4/3 as many columns.
+    """
+
+    radial: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=0.04)
+    aspect: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=4.0 / 3.0)
+    frame_rows: int = eqx.field(static=True, default=512)
+    frame_columns: int = eqx.field(static=True, default=683)
+    image_pixels: int = eqx.field(static=True, default=512)
+    image_scans: int = eqx.field(static=True, default=512)
+
+    @classmethod
+    def for_image(cls, n_pixels: int, n_scans: int, radial=0.04, aspect=4.0 / 3.0):
+        """The camera framing an ``n_pixels`` x ``n_scans`` image in a frame of ``aspect``."""
+        return cls(radial, aspect, n_scans, int(round(n_pixels * aspect)), n_pixels, n_scans)
+
+    def to_image(self, u, v):
+        """Image ``(pixel, scan)`` (1-based) seen at frame ``(u, v)`` (1-based column, row)."""
+        uc, vc = 0.5 * (1 + self.frame_columns), 0.5 * (1 + self.frame_rows)
+        du, dv = (jnp.asarray(u, float) - uc) / self.aspect, jnp.asarray(v, float) - vc
+        half = 0.5 * self.frame_rows
+        scale = 1.0 + self.radial * (du**2 + dv**2) / half**2
+        return 0.5 * (1 + self.image_pixels) + scale * du, 0.5 * (1 + self.image_scans) + scale * dv
+
+
+@dataclass(frozen=True)
+class SatelliteImage:
+    """One simulated image: what a researcher has (pixels, time, control points) and the truth.
+
+    Attributes:
+        name: image id. time: s since the sequence's epoch. data: ``(n_scans, n_pixels)`` brightness 0-1
+            (row = scan line − 1, column = pixel − 1). model: the true :class:`ScanModel`.
+        control: measured control points (pointing noise in pixel and scan; known positions with their σ).
+        clouds: the cloud patches drawn on it (``None``: clear).
+    """
+
+    name: str
+    time: float
+    data: np.ndarray
+    model: ScanModel
+    control: ControlPoints
+    clouds: tuple | None = None
+
+
+@dataclass(frozen=True)
+class ImageSequence:
+    """A simulated sequence of images of one :class:`IceScene` (``epoch``: ISO 8601 UTC of time 0)."""
+
+    scene: IceScene
+    images: tuple[SatelliteImage, ...]
+    epoch: str = "1983-03-08T00:00:00Z"
+
+
+def render(scene: IceScene, model: ScanModel, time: float, clouds=None, distortion: CameraDistortion | None = None):
+    """The image ``(n_scans, n_pixels)`` (or the camera frame ``(frame_rows, frame_columns)`` with
+    ``distortion``) of ``scene`` at ``time`` s through the scan model: each pixel samples the ground brightness
+    at its centre."""
+    if distortion is None:
+        scan, pixel = jnp.meshgrid(jnp.arange(1.0, model.n_scans + 1), jnp.arange(1.0, model.n_pixels + 1),
+                                   indexing="ij")
+    else:
+        v, u = jnp.meshgrid(jnp.arange(1.0, distortion.frame_rows + 1),
+                            jnp.arange(1.0, distortion.frame_columns + 1), indexing="ij")
+        pixel, scan = distortion.to_image(u, v)
+    return _render(scene, model, time, pixel, scan, clouds)
+
+
+@eqx.filter_jit
+def _render(scene, model, time, pixel, scan, clouds):
+    latitude, longitude = model._forward(pixel, scan)
+    xy = jnp.stack(scene.projection.forward(latitude, longitude), axis=-1)
+    inside = (pixel >= 0.5) & (pixel <= model.n_pixels + 0.5) & (scan >= 0.5) & (scan <= model.n_scans + 0.5)
+    return jnp.where(inside, scene.brightness(xy, time, clouds), 0.0)
+
+
+def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interval_days: float = 1.0,
+                      clouds: bool = False, control_points: int = 12, pointing_sigma=(0.3, 0.6),
+                      control_sigma: float = 500.0, scene: IceScene | None = None) -> ImageSequence:
+    """A sequence of NOAA-7-like images of a Lancaster-Sound-like scene, passes alternating south- and
+    northbound with their own nodes, ``interval_days`` apart (plus a few hours of pass time).
+
+    Args:
+        size: pixels and scan lines per image (the swath is the NOAA blow-up's ~620 km whatever the size).
+        clouds: draw one to three cloud patches on every image but the first.
+        control_points: per image, on land (fixed, known features such as capes and lakes).
+        pointing_sigma: ``(pixel, scan)`` σ of the operator's pointing, in pixels (the video camera's vertical
+            resolution was half its horizontal: source 001 section 4).
+        control_sigma: m, σ of the known positions (map accuracy).
+    """
+    rng = np.random.default_rng(seed)
+    scene = scene or ice_scene(rng)
+    lat0, lon0 = (float(a) for a in scene.projection.inverse(*scene.centre))
+    images = []
+    for k in range(n_images):
+        direction = "south" if k % 2 == 0 else "north"
+        template = noaa_image(direction)
+        template = ScanModel(template.scanner_angle_span, 0.5 * (1 + size) + rng.normal(0, 0.1 * size),
+                             template.orbital_angle_first, template.orbital_angle_span, template.ascending_node,
+                             template.orbit, direction, size, size)
+        offset = rng.normal(0.0, 60_000.0, 2) / MEAN_RADIUS  # the pass's centre wanders ±60 km
+        model = place_pass(template, lat0 + offset[0], lon0 + offset[1] / np.cos(lat0))
+        time = k * interval_days * DAY + rng.uniform(-3, 3) * 3600.0
+        cloud = None
+        if clouds and k > 0:
+            count = rng.integers(1, 4)
+            cloud = (np.asarray(scene.centre) + rng.normal(0, 120_000.0, (count, 2)),
+                     rng.uniform(30_000.0, 70_000.0, count))
+        data = np.asarray(render(scene, model, time, cloud))
+        control = _land_control(scene, model, rng, control_points, pointing_sigma, control_sigma)
+        images.append(SatelliteImage(f"IMG{k + 1:02d}", float(time), data, model, control, cloud))
+    return ImageSequence(scene, tuple(images))
+
+
+def _land_control(scene, model, rng, count, pointing_sigma, control_sigma):
+    """``count`` control points on land inside the image, pointed with noise, positions known to σ."""
+    pixels, scans, lats, lons = [], [], [], []
+    while len(pixels) < count:
+        pixel, scan = rng.uniform(8, model.n_pixels - 8, 64), rng.uniform(8, model.n_scans - 8, 64)
+        lat, lon = (np.asarray(a) for a in model._forward(pixel, scan))
+        on_land = np.asarray(scene.coast_offset(jnp.stack(scene.projection.forward(lat, lon), -1))) > 5000.0
+        for p, s, a, b in zip(pixel[on_land], scan[on_land], lat[on_land], lon[on_land], strict=True):
+            if len(pixels) < count:
+                pixels.append(p), scans.append(s), lats.append(a), lons.append(b)
+    pixels = np.array(pixels) + rng.normal(0, pointing_sigma[0], count)
+    scans = np.array(scans) + rng.normal(0, pointing_sigma[1], count)
+    lats = np.array(lats) + rng.normal(0, control_sigma, count) / MEAN_RADIUS
+    lons = np.array(lons) + rng.normal(0, control_sigma, count) / (MEAN_RADIUS * np.cos(lats))
+    return ControlPoints(pixels, scans, lats, lons, control_sigma, [f"L{i + 1}" for i in range(count)])

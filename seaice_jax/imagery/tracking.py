@@ -1,0 +1,235 @@
+"""Automatic ice displacement between two remapped images by normalised cross-correlation (what source 001's
+recommendations asked for instead of a technician's cursor).
+
+For each point of a regular grid (or given points) in the first image, a square patch is searched for in the
+second image around a first guess (zero, given, or from feature matching): OpenCV ``matchTemplate``
+(``TM_CCOEFF_NORMED``), sub-pixel peak by a quadratic fit to the 3 x 3 neighbourhood of the maximum. Quality:
+peak correlation, peak sharpness (peak minus the best correlation more than two pixels from it) and the patch's
+contrast; vectors that disagree with their neighbours are rejected by the normalised median test (Westerweel &
+Scarano 2005, *Exp. Fluids* 39). Clouds are flat: their patches fail the contrast or correlation test.
+
+Positions are 0-based (row, column) of the images' common :class:`~seaice_jax.geometry.projections.MapGrid`;
+:meth:`Displacements.in_map` gives metres and latitude/longitude.
+"""
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.projections import MapGrid
+
+GOOD, NO_DATA, LOW_CONTRAST, LOW_CORRELATION, FLAT_PEAK, AT_EDGE, OUTLIER = range(7)
+STATUS = {GOOD: "good", NO_DATA: "patch outside an image or missing data", LOW_CONTRAST: "patch without texture",
+          LOW_CORRELATION: "correlation below threshold", FLAT_PEAK: "correlation peak not distinct",
+          AT_EDGE: "peak at the edge of the search window", OUTLIER: "disagrees with its neighbours"}
+"""``status`` codes of a displacement vector (written as ``status_flag`` in CF-NetCDF files)."""
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """Choices of :func:`track`.
+
+    Attributes:
+        patch: side of the square template, pixels (odd). search: largest displacement searched, pixels, around
+            the first guess. spacing: pixels between grid points (when no points are given).
+        min_correlation: peak NCC below this is rejected. min_sharpness: peak minus the best correlation more
+            than two pixels away. min_contrast: standard deviation of the template (image units).
+        median_threshold: normalised median test threshold; neighbours: vectors it compares with.
+        first_guess: ``"zero"`` or ``"features"`` (ORB matches and a RANSAC similarity transform).
+    """
+
+    patch: int = 15
+    search: int = 6
+    spacing: int = 8
+    min_correlation: float = 0.6
+    min_sharpness: float = 0.05
+    min_contrast: float = 0.03
+    median_threshold: float = 3.0
+    neighbours: int = 8
+    first_guess: str = "zero"
+
+    def __post_init__(self):
+        if self.patch < 5 or self.patch % 2 == 0:
+            raise SeaiceError(f"patch must be an odd number of pixels >= 5, got {self.patch}")
+        if self.search < 1:
+            raise SeaiceError(f"search must be at least 1 pixel, got {self.search}")
+        if self.first_guess not in ("zero", "features"):
+            raise SeaiceError(f"first_guess must be 'zero' or 'features', got {self.first_guess!r}")
+
+
+@dataclass(frozen=True)
+class Displacements:
+    """Displacement vectors between two images of one grid.
+
+    Attributes:
+        row, column: ``(n,)`` start positions (0-based pixels of the grid). d_row, d_column: ``(n,)`` pixels.
+        correlation, sharpness: ``(n,)`` peak NCC and its distinctness. status: ``(n,)`` :data:`STATUS` codes.
+    """
+
+    row: np.ndarray
+    column: np.ndarray
+    d_row: np.ndarray
+    d_column: np.ndarray
+    correlation: np.ndarray
+    sharpness: np.ndarray
+    status: np.ndarray
+
+    @property
+    def good(self) -> np.ndarray:
+        return self.status == GOOD
+
+    def in_map(self, grid: MapGrid):
+        """Start and end positions in map metres and radians: dict of ``x, y, dx, dy`` (m, along the grid's
+        axes) and ``latitude, longitude, end_latitude, end_longitude``."""
+        x, y = (np.asarray(a) for a in grid.to_xy(self.row, self.column))
+        x_end, y_end = (np.asarray(a) for a in grid.to_xy(self.row + self.d_row, self.column + self.d_column))
+        lat, lon = (np.asarray(a) for a in grid.projection.inverse(x, y))
+        lat_end, lon_end = (np.asarray(a) for a in grid.projection.inverse(x_end, y_end))
+        return dict(x=x, y=y, dx=x_end - x, dy=y_end - y, latitude=lat, longitude=lon, end_latitude=lat_end,
+                    end_longitude=lon_end)
+
+
+def grid_points(shape, options: TrackingOptions):
+    """Rows and columns ``(n,)`` of a regular grid of points far enough from the edges for patch and search."""
+    margin = options.patch // 2 + options.search
+    rows = np.arange(margin, shape[0] - margin, options.spacing)
+    columns = np.arange(margin, shape[1] - margin, options.spacing)
+    r, c = np.meshgrid(rows, columns, indexing="ij")
+    return r.ravel().astype(float), c.ravel().astype(float)
+
+
+def feature_guess(first, second, valid_first=None, valid_second=None):
+    """A first guess of the motion: ORB features matched between the images and a RANSAC similarity transform.
+
+    Returns:
+        a function ``(row, column) -> (d_row, d_column)``, or ``None`` when too few features match.
+    """
+    images = [_as_uint8(a, m) for a, m in ((first, valid_first), (second, valid_second))]
+    orb = cv2.ORB_create(nfeatures=2000, edgeThreshold=15, patchSize=15)
+    (k1, d1), (k2, d2) = (orb.detectAndCompute(a, None) for a in images)
+    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+        return None
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
+    if len(matches) < 8:
+        return None
+    p1 = np.float32([k1[m.queryIdx].pt for m in matches])
+    p2 = np.float32([k2[m.trainIdx].pt for m in matches])
+    transform, inliers = cv2.estimateAffinePartial2D(p1, p2, method=cv2.RANSAC, ransacReprojThreshold=2.0)
+    if transform is None or inliers.sum() < 6:
+        return None
+
+    def guess(row, column):
+        x = transform[0, 0] * column + transform[0, 1] * row + transform[0, 2]
+        y = transform[1, 0] * column + transform[1, 1] * row + transform[1, 2]
+        return y - row, x - column
+
+    return guess
+
+
+def _as_uint8(image, valid):
+    image = np.where(np.isfinite(image) if valid is None else valid & np.isfinite(image), image, np.nan)
+    low, high = np.nanpercentile(image, [1, 99])
+    return np.nan_to_num(np.clip((image - low) / max(high - low, 1e-12), 0, 1) * 255).astype(np.uint8)
+
+
+def _subpixel(surface, i, j):
+    """Quadratic fit to the 3 x 3 neighbourhood of the maximum at ``(i, j)``: sub-pixel offset (di, dj)."""
+    patch = surface[i - 1:i + 2, j - 1:j + 2].astype(float)
+    gi = 0.5 * (patch[2, 1] - patch[0, 1])
+    gj = 0.5 * (patch[1, 2] - patch[1, 0])
+    hii = patch[2, 1] - 2 * patch[1, 1] + patch[0, 1]
+    hjj = patch[1, 2] - 2 * patch[1, 1] + patch[1, 0]
+    hij = 0.25 * (patch[2, 2] - patch[2, 0] - patch[0, 2] + patch[0, 0])
+    hessian = np.array([[hii, hij], [hij, hjj]])
+    if np.linalg.det(hessian) <= 0 or hii >= 0:
+        return 0.0, 0.0
+    offset = -np.linalg.solve(hessian, [gi, gj])
+    return tuple(np.clip(offset, -1.0, 1.0))
+
+
+def track(first, second, options: TrackingOptions = TrackingOptions(), points=None, valid_first=None,
+          valid_second=None, guess=None) -> Displacements:
+    """Displacements of the texture of ``first`` found in ``second`` (two images of one map grid).
+
+    Args:
+        first, second: ``(rows, columns)`` arrays (NaN: no data).
+        points: ``(rows (n,), columns (n,))`` start positions; default :func:`grid_points`.
+        valid_first, valid_second: bool masks (default: finite values).
+        guess: ``(d_row (n,), d_column (n,))`` first guesses in pixels, overriding ``options.first_guess``.
+    """
+    first, second = np.asarray(first, float), np.asarray(second, float)
+    if first.shape != second.shape:
+        raise SeaiceError(f"the images must share one grid, got shapes {first.shape} and {second.shape}")
+    valid_first = np.isfinite(first) if valid_first is None else valid_first & np.isfinite(first)
+    valid_second = np.isfinite(second) if valid_second is None else valid_second & np.isfinite(second)
+    rows, columns = grid_points(first.shape, options) if points is None else (
+        np.asarray(points[0], float), np.asarray(points[1], float))
+    if guess is not None:
+        guess_row, guess_column = (np.broadcast_to(np.asarray(g, float), rows.shape) for g in guess)
+    elif options.first_guess == "features" and (predict := feature_guess(first, second, valid_first,
+                                                                        valid_second)) is not None:
+        guess_row, guess_column = predict(rows, columns)
+    else:
+        guess_row, guess_column = np.zeros_like(rows), np.zeros_like(rows)
+    a = np.where(valid_first, first, 0.0).astype(np.float32)
+    b = np.where(valid_second, second, 0.0).astype(np.float32)
+    h, s = options.patch // 2, options.search
+    n = rows.size
+    out = {k: np.full(n, np.nan) for k in ("d_row", "d_column", "correlation", "sharpness")}
+    status = np.full(n, GOOD)
+    for k in range(n):
+        r, c = int(round(rows[k])), int(round(columns[k]))
+        gr, gc = int(round(guess_row[k])), int(round(guess_column[k]))
+        r2, c2 = r + gr, c + gc
+        if (r - h < 0 or c - h < 0 or r + h + 1 > a.shape[0] or c + h + 1 > a.shape[1] or r2 - h - s < 0
+                or c2 - h - s < 0 or r2 + h + s + 1 > b.shape[0] or c2 + h + s + 1 > b.shape[1]
+                or not valid_first[r - h:r + h + 1, c - h:c + h + 1].all()
+                or not valid_second[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1].all()):
+            status[k] = NO_DATA
+            continue
+        template = a[r - h:r + h + 1, c - h:c + h + 1]
+        if template.std() < options.min_contrast:
+            status[k] = LOW_CONTRAST
+            continue
+        window = b[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1]
+        surface = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+        i, j = np.unravel_index(int(np.argmax(surface)), surface.shape)
+        peak = float(surface[i, j])
+        away = surface.copy()
+        away[max(i - 2, 0):i + 3, max(j - 2, 0):j + 3] = -1.0
+        out["correlation"][k], out["sharpness"][k] = peak, peak - float(away.max())
+        if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
+            status[k] = AT_EDGE
+            continue
+        di, dj = _subpixel(surface, i, j)
+        out["d_row"][k] = gr + i - s + di + (r - rows[k])
+        out["d_column"][k] = gc + j - s + dj + (c - columns[k])
+        if peak < options.min_correlation:
+            status[k] = LOW_CORRELATION
+        elif out["sharpness"][k] < options.min_sharpness:
+            status[k] = FLAT_PEAK
+    result = Displacements(rows, columns, out["d_row"], out["d_column"], out["correlation"], out["sharpness"],
+                           status)
+    return median_test(result, options)
+
+
+def median_test(displacements: Displacements, options: TrackingOptions = TrackingOptions()) -> Displacements:
+    """Flag as :data:`OUTLIER` the good vectors that fail the normalised median test against their
+    ``options.neighbours`` nearest good neighbours: |d − median| / (median |d_i − median| + 0.1 px) > threshold."""
+    good = np.nonzero(displacements.good)[0]
+    if good.size <= options.neighbours:
+        return displacements
+    position = np.stack([displacements.row[good], displacements.column[good]], 1)
+    vector = np.stack([displacements.d_row[good], displacements.d_column[good]], 1)
+    distance = np.linalg.norm(position[:, None] - position[None], axis=-1)
+    np.fill_diagonal(distance, np.inf)
+    nearest = np.argsort(distance, axis=1)[:, :options.neighbours]
+    neighbours = vector[nearest]  # (g, k, 2)
+    median = np.median(neighbours, axis=1)
+    spread = np.median(np.abs(neighbours - median[:, None]), axis=1)
+    normalised = np.abs(vector - median) / (spread + 0.1)
+    status = displacements.status.copy()
+    status[good[(normalised > options.median_threshold).any(axis=1)]] = OUTLIER
+    return replace(displacements, status=status)
