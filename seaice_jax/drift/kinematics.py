@@ -14,8 +14,10 @@ least-squares engine, so their parameters come with standard deviations.
 import functools
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
+from matplotlib.tri import Triangulation
 
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
@@ -143,3 +145,218 @@ def drift_vectors(earlier, later, interval_seconds: float) -> DriftVectors:
     speed = np.hypot(displacement[:, 0], displacement[:, 1]) / interval_seconds
     direction = np.degrees(np.arctan2(displacement[:, 0], displacement[:, 1])) % 360.0
     return DriftVectors(displacement, speed, direction)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Velocities, box averages, time series and deformation (source 001, section 4 and Figures 4-3 to 4-7)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Velocities:
+    """Velocities between consecutive fixes of floes.
+
+    Attributes:
+        floe: ``(n,)`` ids. time: ``(n,)`` s, the middle of each interval; interval: ``(n,)`` s.
+        x, y: ``(n,)`` m, map position at the middle of the interval.
+        u_grid, v_grid: ``(n,)`` m/s along the map grid's x and y axes (grid-relative).
+        u_east, v_north: ``(n,)`` m/s toward geographic east and north.
+    """
+
+    floe: np.ndarray
+    time: np.ndarray
+    interval: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    u_grid: np.ndarray
+    v_grid: np.ndarray
+    u_east: np.ndarray
+    v_north: np.ndarray
+
+    @property
+    def speed(self) -> np.ndarray:
+        return np.hypot(self.u_grid, self.v_grid)
+
+
+def grid_to_east_north(projection, x, y, u, v):
+    """Rotate map-grid vector components ``(u, v)`` at map points ``(x, y)`` into geographic east and north
+    (the grid's convergence and any scale difference along the axes taken from the projection's Jacobian).
+
+    Returns:
+        ``(east, north)`` in the vector's units, measured on the ground (a grid metre is one ground metre at
+        the point only where the scale factor is 1; the ground vector keeps the map vector's length here, only
+        its direction is rotated).
+    """
+    lat, lon = (np.asarray(a) for a in projection.inverse(np.asarray(x, float), np.asarray(y, float)))
+
+    def forward(point):
+        return jnp.stack(projection.forward(point[0], point[1]))
+
+    jac = np.asarray(jax.vmap(jax.jacfwd(forward))(jnp.stack([jnp.asarray(lat), jnp.asarray(lon)], -1)))
+    north_dir = jac[:, :, 0] / np.linalg.norm(jac[:, :, 0], axis=1, keepdims=True)
+    east_dir = jac[:, :, 1] / np.linalg.norm(jac[:, :, 1], axis=1, keepdims=True)
+    vectors = np.stack([np.broadcast_to(u, lat.shape), np.broadcast_to(v, lat.shape)], -1)
+    return np.sum(vectors * east_dir, axis=1), np.sum(vectors * north_dir, axis=1)
+
+
+def velocities(floe, time, x, y, projection) -> Velocities:
+    """Velocities of each floe between its consecutive fixes (finite differences of its trajectory).
+
+    Args:
+        floe: ``(n,)`` ids; time: ``(n,)`` s; x, y: ``(n,)`` map metres of the fixes (any order).
+        projection: the map projection of ``x, y`` (for east/north components).
+    """
+    floe, time, x, y = (np.asarray(a) for a in (floe, time, x, y))
+    rows = {k: [] for k in ("floe", "time", "interval", "x", "y", "u", "v")}
+    for f in dict.fromkeys(floe.tolist()):
+        k = np.nonzero(floe == f)[0]
+        k = k[np.argsort(time[k])]
+        dt = np.diff(time[k])
+        if np.any(dt <= 0):
+            raise SeaiceError(f"floe {f}: two fixes at the same time {time[k][np.argmin(dt)]} s")
+        rows["floe"] += [f] * dt.size
+        rows["time"].append(0.5 * (time[k][1:] + time[k][:-1]))
+        rows["interval"].append(dt)
+        rows["x"].append(0.5 * (x[k][1:] + x[k][:-1]))
+        rows["y"].append(0.5 * (y[k][1:] + y[k][:-1]))
+        rows["u"].append(np.diff(x[k]) / dt)
+        rows["v"].append(np.diff(y[k]) / dt)
+    arrays = {k: (np.concatenate(v) if v and k != "floe" else np.asarray(v, dtype=floe.dtype if k == "floe"
+                                                                          else float)) for k, v in rows.items()}
+    if arrays["x"].size == 0:
+        raise SeaiceError("no floe has two fixes: no velocities")
+    east, north = grid_to_east_north(projection, arrays["x"], arrays["y"], arrays["u"], arrays["v"])
+    return Velocities(arrays["floe"], arrays["time"], arrays["interval"], arrays["x"], arrays["y"], arrays["u"],
+                      arrays["v"], east, north)
+
+
+@dataclass(frozen=True)
+class BoxAverages:
+    """Velocity vectors averaged in square boxes, with their standard deviations (the rectangles of source 001,
+    Figure 4-7).
+
+    Attributes:
+        x, y: ``(b,)`` m, box centres. u, v: ``(b,)`` mean velocity (m/s, grid axes). sigma_u, sigma_v: ``(b,)``
+        sample standard deviations of the velocities in each box. count: ``(b,)`` vectors in the box.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    sigma_u: np.ndarray
+    sigma_v: np.ndarray
+    count: np.ndarray
+
+
+def _box_index(x, y, box_size, origin):
+    return (np.floor((np.asarray(x) - origin[0]) / box_size).astype(int),
+            np.floor((np.asarray(y) - origin[1]) / box_size).astype(int))
+
+
+def box_averages(x, y, u, v, box_size: float, origin=(0.0, 0.0), min_count: int = 2) -> BoxAverages:
+    """Mean and standard deviation of the velocity vectors in each ``box_size`` m square box (boxes aligned
+    at ``origin``) with at least ``min_count`` vectors."""
+    if not box_size > 0:
+        raise SeaiceError(f"box_size must be > 0 m, got {box_size}")
+    i, j = _box_index(x, y, box_size, origin)
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    out = {k: [] for k in ("x", "y", "u", "v", "sigma_u", "sigma_v", "count")}
+    for key in sorted(set(zip(i.tolist(), j.tolist(), strict=True))):
+        members = (i == key[0]) & (j == key[1])
+        if members.sum() < min_count:
+            continue
+        out["x"].append(origin[0] + (key[0] + 0.5) * box_size)
+        out["y"].append(origin[1] + (key[1] + 0.5) * box_size)
+        out["u"].append(u[members].mean())
+        out["v"].append(v[members].mean())
+        out["sigma_u"].append(u[members].std(ddof=1))
+        out["sigma_v"].append(v[members].std(ddof=1))
+        out["count"].append(int(members.sum()))
+    return BoxAverages(**{k: np.asarray(val) for k, val in out.items()})
+
+
+def box_time_series(velocity: Velocities, box_size: float, origin=(0.0, 0.0), period: float = 86400.0):
+    """Box-averaged velocity per ``period`` s (daily by default; source 001, Figure 4-5).
+
+    Returns:
+        dict ``{(i, j) box index: {"time": (d,) s (period middles), "u", "v", "sigma_u", "sigma_v", "count"}}``.
+    """
+    i, j = _box_index(velocity.x, velocity.y, box_size, origin)
+    day = np.floor(velocity.time / period).astype(int)
+    series = {}
+    for key in sorted(set(zip(i.tolist(), j.tolist(), strict=True))):
+        in_box = (i == key[0]) & (j == key[1])
+        entry = {k: [] for k in ("time", "u", "v", "sigma_u", "sigma_v", "count")}
+        for d in np.unique(day[in_box]):
+            members = in_box & (day == d)
+            entry["time"].append((d + 0.5) * period)
+            entry["u"].append(velocity.u_grid[members].mean())
+            entry["v"].append(velocity.v_grid[members].mean())
+            entry["sigma_u"].append(velocity.u_grid[members].std(ddof=1) if members.sum() > 1 else np.nan)
+            entry["sigma_v"].append(velocity.v_grid[members].std(ddof=1) if members.sum() > 1 else np.nan)
+            entry["count"].append(int(members.sum()))
+        series[key] = {k: np.asarray(val) for k, val in entry.items()}
+    return series
+
+
+@dataclass(frozen=True)
+class Deformation:
+    """Strain rates of triangles of points (1/s), by line integrals around each triangle, with first-order σ.
+
+    Attributes:
+        triangles: ``(t, 3)`` point indices. area: ``(t,)`` m². gradient: ``(t, 2, 2)`` ∂(u, v)/∂(x, y).
+        divergence, shear, vorticity: ``(t,)``; sigma_divergence, sigma_shear, sigma_vorticity: ``(t,)``.
+    """
+
+    triangles: np.ndarray
+    area: np.ndarray
+    gradient: np.ndarray
+    divergence: np.ndarray
+    shear: np.ndarray
+    vorticity: np.ndarray
+    sigma_divergence: np.ndarray
+    sigma_shear: np.ndarray
+    sigma_vorticity: np.ndarray
+
+
+def _strain_rates(corners, velocity):
+    """Divergence, maximum shear and vorticity of one triangle: ``corners (3, 2)`` m, ``velocity (3, 2)`` m/s.
+
+    Green's theorem with the trapezoidal rule along the edges (exact for a linear field): ∂u/∂x = (1/A)∮u dy,
+    ∂u/∂y = −(1/A)∮u dx, and the same for v."""
+    nxt = jnp.roll(jnp.arange(3), -1)
+    dx = corners[nxt, 0] - corners[:, 0]
+    dy = corners[nxt, 1] - corners[:, 1]
+    area = 0.5 * jnp.sum(corners[:, 0] * corners[nxt, 1] - corners[nxt, 0] * corners[:, 1])
+    mean = 0.5 * (velocity + velocity[nxt])  # (3, 2) edge means
+    ux, uy = jnp.sum(mean[:, 0] * dy) / area, -jnp.sum(mean[:, 0] * dx) / area
+    vx, vy = jnp.sum(mean[:, 1] * dy) / area, -jnp.sum(mean[:, 1] * dx) / area
+    rates = jnp.stack([ux + vy, jnp.hypot(ux - vy, uy + vx), vx - uy])
+    return rates, jnp.array([[ux, uy], [vx, vy]]), area
+
+
+def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation:
+    """Divergence, shear and vorticity of triangles of points and their σ, propagated to first order from
+    independent velocity errors (positions taken as exact).
+
+    Args:
+        points: ``(n, 2)`` m. velocity: ``(n, 2)`` m/s. velocity_sigma: σ per velocity component, scalar or
+            ``(n,)`` or ``(n, 2)`` m/s.
+        triangles: ``(t, 3)`` indices; default the Delaunay triangulation of ``points``.
+    """
+    points, velocity = np.asarray(points, float), np.asarray(velocity, float)
+    if points.shape != velocity.shape or points.ndim != 2 or points.shape[1] != 2:
+        raise SeaiceError(f"points and velocities must both be (n, 2), got {points.shape} and {velocity.shape}")
+    if points.shape[0] < 3:
+        raise SeaiceError(f"deformation needs at least 3 points, got {points.shape[0]}")
+    triangles = np.asarray(Triangulation(points[:, 0], points[:, 1]).triangles if triangles is None else triangles)
+    sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
+        (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
+    corners, corner_velocity = jnp.asarray(points[triangles]), jnp.asarray(velocity[triangles])
+    rates, gradient, area = jax.vmap(_strain_rates)(corners, corner_velocity)
+    jacobian = jax.vmap(jax.jacfwd(lambda c, v: _strain_rates(c, v)[0], argnums=1))(corners, corner_velocity)
+    variance = np.einsum("trkc,tkc->tr", np.asarray(jacobian) ** 2, sigma[triangles] ** 2)
+    rates, std = np.asarray(rates), np.sqrt(variance)
+    return Deformation(triangles, np.abs(np.asarray(area)), np.asarray(gradient), rates[:, 0], rates[:, 1],
+                       rates[:, 2], std[:, 0], std[:, 1], std[:, 2])

@@ -1,0 +1,135 @@
+"""Floe position records (source 001, the ICE module and its buffer files), in CSV.
+
+One record per floe per image: ``floe_id, time, image, pixel, scan, latitude, longitude`` (time ISO 8601 UTC,
+pixel and scan 1-based fractional image coordinates, latitude and longitude in degrees). Reading validates what
+the 1985 buffer check did, and names the file and line of the first record at fault:
+
+* every column present, numbers finite, latitude within ±90°, longitude within ±180°;
+* a valid date and time;
+* the image known (when the caller lists the images of the sequence);
+* no floe twice in one image (duplicate ids);
+* each floe's records in increasing time.
+"""
+
+import csv
+import os
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.io.files import write_csv
+
+COLUMNS = ("floe_id", "time", "image", "pixel", "scan", "latitude", "longitude")
+
+
+@dataclass(frozen=True)
+class FloeRecords:
+    """Floe positions, one row per floe per image (angles in radians, times in s since ``epoch``).
+
+    Attributes:
+        floe, image: ``(n,)`` str ids. time: ``(n,)`` s. pixel, scan: ``(n,)``. latitude, longitude: ``(n,)`` rad.
+        epoch: ISO 8601 UTC of time 0. lines: ``(n,)`` the file line of each record (0 if not from a file).
+    """
+
+    floe: np.ndarray
+    time: np.ndarray
+    image: np.ndarray
+    pixel: np.ndarray
+    scan: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray
+    epoch: str = "1970-01-01T00:00:00Z"
+    lines: np.ndarray | None = None
+
+    def __len__(self):
+        return self.floe.size
+
+
+def parse_time(text: str) -> datetime:
+    """An ISO 8601 date-time (``Z`` or an offset; naive means UTC) as an aware UTC datetime."""
+    moment = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    return (moment if moment.tzinfo else moment.replace(tzinfo=UTC)).astimezone(UTC)
+
+
+def format_time(moment: datetime) -> str:
+    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def seconds_since(epoch: str, times) -> np.ndarray:
+    """Seconds from ``epoch`` (ISO 8601) of datetimes."""
+    origin = parse_time(epoch)
+    return np.array([(t - origin).total_seconds() for t in times], float)
+
+
+def read_records(path: str | os.PathLike, images=None, epoch: str | None = None) -> FloeRecords:
+    """Read and validate a floe record CSV.
+
+    Args:
+        images: the known image ids (``None``: any).
+        epoch: ISO 8601 time 0 of the returned times (default: the earliest record).
+
+    Raises:
+        SeaiceError: naming the file and line (and floe) of the first bad record.
+    """
+    path = Path(path)
+    with open(path, newline="") as stream:
+        reader = csv.DictReader(stream)
+        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise SeaiceError(f"{path}: missing column(s) {', '.join(missing)} (need {', '.join(COLUMNS)})")
+        rows = list(reader)
+    if not rows:
+        raise SeaiceError(f"{path}: no records")
+    known = None if images is None else set(images)
+    parsed, seen, last = [], {}, {}
+    for k, row in enumerate(rows):
+        line = k + 2  # the header is line 1
+        where = f"{path}, line {line}"
+        floe, image = row["floe_id"].strip(), row["image"].strip()
+        if not floe:
+            raise SeaiceError(f"{where}: empty floe_id")
+        try:
+            moment = parse_time(row["time"])
+        except ValueError:
+            raise SeaiceError(f"{where}: floe {floe}: invalid date {row['time']!r} (ISO 8601 expected, e.g. "
+                              "1983-03-08T14:05:00Z)") from None
+        numbers = []
+        for name in ("pixel", "scan", "latitude", "longitude"):
+            try:
+                value = float(row[name])
+            except (TypeError, ValueError):
+                raise SeaiceError(f"{where}: floe {floe}: {name} {row[name]!r} is not a number") from None
+            if not np.isfinite(value):
+                raise SeaiceError(f"{where}: floe {floe}: {name} is not finite")
+            numbers.append(value)
+        if abs(numbers[2]) > 90 or abs(numbers[3]) > 180:
+            raise SeaiceError(f"{where}: floe {floe}: position ({numbers[2]}, {numbers[3]}) outside ±90° / ±180°")
+        if known is not None and image not in known:
+            raise SeaiceError(f"{where}: floe {floe}: unknown image {image!r} (known: {', '.join(sorted(known))})")
+        if (floe, image) in seen:
+            raise SeaiceError(f"{where}: floe {floe} appears twice in image {image} (first at line "
+                              f"{seen[(floe, image)]}): duplicate id")
+        seen[(floe, image)] = line
+        if floe in last and moment <= last[floe][0]:
+            raise SeaiceError(f"{where}: floe {floe}: time {format_time(moment)} is not after its previous record "
+                              f"(line {last[floe][1]}, {format_time(last[floe][0])}): dates must increase")
+        last[floe] = (moment, line)
+        parsed.append((floe, moment, image, *numbers, line))
+    epoch = epoch or format_time(min(p[1] for p in parsed))
+    columns = list(zip(*parsed, strict=True))
+    return FloeRecords(np.array(columns[0]), seconds_since(epoch, columns[1]), np.array(columns[2]),
+                       np.array(columns[3]), np.array(columns[4]), np.radians(columns[5]), np.radians(columns[6]),
+                       epoch, np.array(columns[7]))
+
+
+def write_records(path: str | os.PathLike, records: FloeRecords) -> Path:
+    """Write floe records as CSV (atomically), in the format :func:`read_records` reads."""
+    origin = parse_time(records.epoch).timestamp()
+    times = [format_time(datetime.fromtimestamp(origin + t, UTC)) for t in records.time]
+    return write_csv(path, {"floe_id": records.floe, "time": np.array(times), "image": records.image,
+                            "pixel": records.pixel, "scan": records.scan,
+                            "latitude": np.degrees(records.latitude), "longitude": np.degrees(records.longitude)},
+                     float_format="%.10g")
