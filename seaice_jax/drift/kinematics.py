@@ -187,7 +187,8 @@ def grid_to_east_north(projection, x, y, u, v):
         the point only where the scale factor is 1; the ground vector keeps the map vector's length here, only
         its direction is rotated).
     """
-    lat, lon = (np.asarray(a) for a in projection.inverse(np.asarray(x, float), np.asarray(y, float)))
+    lat, lon = (np.atleast_1d(np.asarray(a)) for a in projection.inverse(np.asarray(x, float),
+                                                                          np.asarray(y, float)))
 
     def forward(point):
         return jnp.stack(projection.forward(point[0], point[1]))
@@ -336,6 +337,13 @@ def _strain_rates(corners, velocity):
     return rates, jnp.array([[ux, uy], [vx, vy]]), area
 
 
+@jax.jit
+def _triangle_rates(corners, velocity):
+    rates, gradient, area = jax.vmap(_strain_rates)(corners, velocity)
+    jacobian = jax.vmap(jax.jacfwd(lambda c, v: _strain_rates(c, v)[0], argnums=1))(corners, velocity)
+    return rates, gradient, area, jacobian
+
+
 def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation:
     """Divergence, shear and vorticity of triangles of points and their σ, propagated to first order from
     independent velocity errors (positions taken as exact).
@@ -353,9 +361,8 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     triangles = np.asarray(Triangulation(points[:, 0], points[:, 1]).triangles if triangles is None else triangles)
     sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
-    corners, corner_velocity = jnp.asarray(points[triangles]), jnp.asarray(velocity[triangles])
-    rates, gradient, area = jax.vmap(_strain_rates)(corners, corner_velocity)
-    jacobian = jax.vmap(jax.jacfwd(lambda c, v: _strain_rates(c, v)[0], argnums=1))(corners, corner_velocity)
+    rates, gradient, area, jacobian = _triangle_rates(jnp.asarray(points[triangles]),
+                                                      jnp.asarray(velocity[triangles]))
     variance = np.einsum("trkc,tkc->tr", np.asarray(jacobian) ** 2, sigma[triangles] ** 2)
     rates, std = np.asarray(rates), np.sqrt(variance)
     return Deformation(triangles, np.abs(np.asarray(area)), np.asarray(gradient), rates[:, 0], rates[:, 1],

@@ -99,7 +99,8 @@ def _waves(rng, count, shortest, longest):
 def _field(waves, xi):
     """Sum of plane waves at points ``xi (..., 2)`` m: a smooth random field of unit RMS."""
     vectors, phases, amplitudes = waves
-    return jnp.sum(amplitudes * jnp.cos(xi @ vectors.T + phases), axis=-1)
+    angle = xi @ vectors.T
+    return jnp.cos(angle + jnp.broadcast_to(phases, angle.shape)) @ amplitudes
 
 
 class IceScene(eqx.Module):
@@ -133,20 +134,22 @@ class IceScene(eqx.Module):
     def displacement(self, xy, time):
         """Displacement (m) by ``time`` s of the pack ice that is at ``xy (..., 2)`` m at time 0 (zero on land
         and fast ice is not applied here: see :meth:`is_pack`)."""
-        return time * (self.velocity + (jnp.asarray(xy) - self.centre) @ self.velocity_gradient.T)
+        relative = jnp.asarray(xy) - jnp.broadcast_to(self.centre, jnp.shape(xy))
+        return time * (jnp.broadcast_to(self.velocity, relative.shape) + relative @ self.velocity_gradient.T)
 
     def material_position(self, xy, time):
         """Where the pack ice at ``xy (..., 2)`` at ``time`` s was at time 0 (the inverse of the motion)."""
         matrix = jnp.eye(2) + time * self.velocity_gradient
-        shifted = jnp.asarray(xy) - self.centre - time * self.velocity
-        return self.centre + jnp.linalg.solve(matrix, shifted.reshape(-1, 2).T).T.reshape(shifted.shape)
+        xy = jnp.asarray(xy)
+        shifted = xy - jnp.broadcast_to(self.centre + time * self.velocity, xy.shape)
+        material = jnp.linalg.solve(matrix, shifted.reshape(-1, 2).T).T.reshape(xy.shape)
+        return material + jnp.broadcast_to(self.centre, xy.shape)
 
     def coast_offset(self, xy):
         """Signed distance-like coordinate (m) toward land from the coastline (> 0 on land)."""
-        xi = jnp.asarray(xy) - self.centre
-        along = xi @ jnp.array([-self.coast_normal[1], self.coast_normal[0]])
-        vectors, phases, amplitudes = self.coast_waves
-        meander = jnp.sum(amplitudes * jnp.cos(along[..., None] * vectors[:, 0] + phases), axis=-1)
+        xi = jnp.asarray(xy) - jnp.broadcast_to(self.centre, jnp.shape(xy))
+        along = xi @ jnp.stack([-self.coast_normal[1], self.coast_normal[0]])
+        meander = _field(self.coast_waves, jnp.stack([along, jnp.zeros_like(along)], axis=-1))
         return xi @ self.coast_normal - self.coast_distance - meander
 
     def is_pack(self, xy):
@@ -168,7 +171,8 @@ class IceScene(eqx.Module):
         value = on_land * land + (1 - on_land) * (on_fast * fast + (1 - on_fast) * pack)
         if clouds is not None:
             centres, radii = (jnp.asarray(a, float) for a in clouds)
-            distance2 = jnp.sum((xy[..., None, :] - centres) ** 2, axis=-1) / radii**2
+            difference = xy[..., None, :] - jnp.broadcast_to(centres, (*xy.shape[:-1], *centres.shape))
+            distance2 = jnp.sum(difference**2, axis=-1) / jnp.broadcast_to(radii**2, difference.shape[:-1])
             opacity = jnp.clip(jnp.max(jnp.exp(-0.5 * distance2**2) * 1.6, axis=-1), 0.0, 1.0)
             value = (1 - opacity) * value + opacity * 0.93
         return value
@@ -193,7 +197,7 @@ def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity
     north = jnp.stack(projection.forward(lat + 1e-4, lon)) - centre
     coast_normal = north / jnp.linalg.norm(north)
     coast_waves = _waves(rng, 4, 60_000.0, 300_000.0)
-    coast_waves = (coast_waves[0] * jnp.array([1.0, 0.0]), coast_waves[1], coast_waves[2] * 15_000.0)
+    coast_waves = (coast_waves[0].at[:, 1].set(0.0), coast_waves[1], coast_waves[2] * 15_000.0)
     return IceScene(projection, centre, coast_normal, jnp.asarray(150_000.0), jnp.asarray(40_000.0),
                     jnp.asarray(velocity, float), jnp.asarray(velocity_gradient, float),
                     _waves(rng, 40, 2 * feature_size, 12 * feature_size), _waves(rng, 20, feature_size,

@@ -1,0 +1,160 @@
+"""Remapping and tracking against simulated image sequences whose ground truth is known."""
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.projections import ImageGrid, MapGrid
+from seaice_jax.imagery.remap import fill_holes, remap, swath_masks
+from seaice_jax.imagery.tracking import GOOD, LOW_CONTRAST, TrackingOptions, track
+from seaice_jax.simulate.satellite import simulate_sequence
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    return simulate_sequence(3, n_images=3, size=128)
+
+
+def scene_grid(scene, pixel=4000.0, rows=96, columns=96):
+    lat, lon = scene.projection.inverse(*scene.centre)
+    return MapGrid.centred(scene.projection, lat, lon, pixel, pixel, rows, columns)
+
+
+def truth_on(grid, scene, time):
+    x, y = grid.xy()
+    return np.asarray(scene.brightness(jnp.stack([x, y], -1), time))
+
+
+def test_remapping_with_the_true_model_reproduces_the_ground_to_subpixel(sequence):
+    grid = scene_grid(sequence.scene)
+    values, valid = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
+    for k, image in enumerate(sequence.images):
+        truth = truth_on(grid, sequence.scene, image.time)
+        ok = valid[k]
+        assert ok.mean() > 0.9  # the passes are centred on the scene
+        error = values[k][ok] - truth[ok]
+        assert abs(error.mean()) < 0.005 and np.sqrt(np.mean(error**2)) < 0.08  # interpolation of ~5 km pixels
+        shift, _ = cv2.phaseCorrelate(np.where(ok, truth, 0).astype(np.float32),
+                                      np.where(ok, values[k], 0).astype(np.float32))
+        assert np.hypot(*shift) < 0.1  # registration against truth: sub-pixel
+
+
+def test_a_wrong_node_shows_as_a_shift(sequence):
+    """The registration check can fail: a model whose node is off by one grid pixel's angle misregisters."""
+    import equinox as eqx
+
+    grid = scene_grid(sequence.scene)
+    image = sequence.images[0]
+    shifted = eqx.tree_at(lambda m: m.ascending_node, image.model, replace=image.model.ascending_node + 4000.0 / (
+        6_371_000.0 * np.cos(np.radians(74.0))))
+    values, valid = remap([image.data], [shifted], grid)
+    truth = truth_on(grid, sequence.scene, image.time)
+    shift, _ = cv2.phaseCorrelate(np.where(valid[0], truth, 0).astype(np.float32),
+                                  np.where(valid[0], values[0], 0).astype(np.float32))
+    assert np.hypot(*shift) > 0.7
+
+
+def test_vmapped_batch_equals_one_by_one_and_both_pass_directions(sequence):
+    grid = scene_grid(sequence.scene, rows=40, columns=50)
+    images, models = [im.data for im in sequence.images], [im.model for im in sequence.images]
+    assert {m.direction for m in models} == {"south", "north"}
+    batch, valid = remap(images, models, grid)
+    for k in range(len(images)):
+        single, single_valid = remap([images[k]], [models[k]], grid)
+        np.testing.assert_array_equal(single[0], batch[k])
+        np.testing.assert_array_equal(single_valid[0], valid[k])
+    nearest, _ = remap(images, models, grid, method="nearest")
+    assert np.nanmax(np.abs(nearest - batch)) > 0.01  # the methods differ
+    np.testing.assert_array_equal(valid, swath_masks(models, grid))
+
+
+def test_outside_the_swath_is_masked_and_bad_input_named(sequence):
+    image = sequence.images[0]
+    far = MapGrid.centred(sequence.scene.projection, np.radians(60.0), np.radians(-40.0), 4000.0, 4000.0, 8, 8)
+    values, valid = remap([image.data], [image.model], far)
+    assert not valid.any() and np.isnan(values).all()
+    with pytest.raises(SeaiceError, match=r"image 0: shape \(10, 10\) does not match its scan model"):
+        remap([np.zeros((10, 10))], [image.model], far)
+    with pytest.raises(SeaiceError, match="method must be one of"):
+        remap([image.data], [image.model], far, method="cubic")
+
+
+def test_fill_closes_holes_of_missing_data_with_the_mean_of_neighbours(sequence):
+    grid = scene_grid(sequence.scene)
+    image = sequence.images[0]
+    data = image.data.copy()
+    rng = np.random.default_rng(0)
+    holes = rng.random(data.shape) < 0.05  # scattered lost pixels (dropouts of the digitizer)
+    data[holes] = np.nan
+    values, valid = remap([data], [image.model], grid)
+    assert (~valid[0] & swath_masks([image.model], grid)[0]).sum() > 100
+    filled, filled_valid = remap([data], [image.model], grid, fill=2)
+    inside = swath_masks([image.model], grid)[0]
+    assert filled_valid[0][inside].all() and not filled_valid[0][~inside].any()
+    truth = truth_on(grid, sequence.scene, image.time)
+    patched = inside & ~valid[0]
+    assert np.sqrt(np.mean((filled[0][patched] - truth[patched]) ** 2)) < 0.15
+    # a single hole takes exactly the mean of its eight valid neighbours
+    block = jnp.arange(9.0).reshape(3, 3)
+    mask = jnp.ones((3, 3), bool).at[1, 1].set(False)
+    assert float(fill_holes(block, mask)[1, 1]) == pytest.approx((36.0 - 4.0) / 8.0)
+
+
+def test_equirectangular_image_grid_of_source_001():
+    grid = ImageGrid(np.radians(74.0), np.radians(-87.0), 50.5, 40.5, 1000.0, 1200.0)
+    raster = MapGrid.from_image_grid(grid, 80, 100)
+    lat, lon = raster.latitude_longitude()
+    pixel, line = grid.forward(lat, lon)
+    columns, rows = np.meshgrid(np.arange(100), np.arange(80))
+    np.testing.assert_allclose(pixel, columns + 1.0, atol=1e-9)
+    np.testing.assert_allclose(line, rows + 1.0, atol=1e-9)
+
+
+def tracking_truth(sequence, grid, d, first, second):
+    """Displacement (grid pixels) of the ground at each start point, and whether the point's surroundings are
+    all pack ice or all static (the tracking patch sees one motion)."""
+    scene = sequence.scene
+    x, y = (np.asarray(a) for a in grid.to_xy(d.row, d.column))
+    xy = np.stack([x, y], -1)
+    pack = np.asarray(scene.is_pack(xy))
+    material = np.asarray(scene.material_position(xy, first.time))
+    end = np.where(pack[:, None], material + np.asarray(scene.displacement(material, second.time)), xy)
+    rows, columns = (np.asarray(a) for a in grid.to_pixel(end[:, 0], end[:, 1]))
+    margin = 12 * float(grid.pixel_width)
+    offsets = [np.array([a, b]) for a in (-margin, 0, margin) for b in (-margin, 0, margin)]
+    uniform = np.all([np.asarray(scene.is_pack(xy + o)) == pack for o in offsets], axis=0)
+    return rows - d.row, columns - d.column, uniform
+
+
+@pytest.mark.parametrize("first_guess", ["zero", "features"])
+def test_tracking_recovers_the_motion_field_on_clear_images(first_guess):
+    sequence = simulate_sequence(1, n_images=2, size=256)
+    grid = scene_grid(sequence.scene, 2500.0, 150, 150)
+    (a, b), _ = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
+    d = track(a, b, TrackingOptions(first_guess=first_guess))
+    true_row, true_column, uniform = tracking_truth(sequence, grid, d, *sequence.images)
+    good = d.good & uniform
+    assert good.sum() > 150
+    assert np.abs(true_column[good]).max() > 1.0  # the ice moved more than a pixel
+    error = np.hypot(d.d_row[good] - true_row[good], d.d_column[good] - true_column[good])
+    assert np.sqrt(np.mean(error**2)) < 0.3
+
+
+def test_quality_flags_reject_cloud_covered_patches():
+    sequence = simulate_sequence(1, n_images=2, size=256, clouds=True)
+    grid = scene_grid(sequence.scene, 2500.0, 150, 150)
+    (a, b), _ = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
+    d = track(a, b)
+    centres, radii = sequence.images[1].clouds
+    x, y = (np.asarray(v) for v in grid.to_xy(d.row, d.column))
+    under = np.min(np.hypot(x[:, None] - centres[:, 0], y[:, None] - centres[:, 1]) / radii, axis=1) < 0.7
+    assert under.sum() >= 5
+    assert not d.good[under].any()
+    true_row, true_column, uniform = tracking_truth(sequence, grid, d, *sequence.images)
+    good = d.good & uniform
+    error = np.hypot(d.d_row[good] - true_row[good], d.d_column[good] - true_column[good])
+    assert np.sqrt(np.mean(error**2)) < 0.3  # what passes is still right
+    flat = track(np.full((60, 60), 0.9), np.full((60, 60), 0.9))
+    assert (flat.status == LOW_CONTRAST).all() and GOOD not in flat.status
