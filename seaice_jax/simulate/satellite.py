@@ -240,9 +240,11 @@ class CameraDistortion(eqx.Module):
     image_scans: int = eqx.field(static=True, default=512)
 
     @classmethod
-    def for_image(cls, n_pixels: int, n_scans: int, radial=0.04, aspect=4.0 / 3.0):
-        """The camera framing an ``n_pixels`` x ``n_scans`` image in a frame of ``aspect``."""
-        return cls(radial, aspect, n_scans, int(round(n_pixels * aspect)), n_pixels, n_scans)
+    def for_image(cls, n_pixels: int, n_scans: int, radial=0.04, aspect=4.0 / 3.0, margin: float = 0.25):
+        """The camera framing an ``n_pixels`` x ``n_scans`` image with ``margin`` (a fraction of the image) of
+        the sheet around it, in a frame of ``aspect``."""
+        rows = int(round(n_scans * (1 + margin)))
+        return cls(radial, aspect, rows, int(round(n_pixels * (1 + margin) * aspect)), n_pixels, n_scans)
 
     def to_image(self, u, v):
         """Image ``(pixel, scan)`` (1-based) seen at frame ``(u, v)`` (1-based column, row)."""
@@ -356,3 +358,16 @@ def _land_control(scene, model, rng, count, pointing_sigma, control_sigma):
     lats = np.array(lats) + rng.normal(0, control_sigma, count) / MEAN_RADIUS
     lons = np.array(lons) + rng.normal(0, control_sigma, count) / (MEAN_RADIUS * np.cos(lats))
     return ControlPoints(pixels, scans, lats, lons, control_sigma, [f"L{i + 1}" for i in range(count)])
+
+
+def render_grid_target(distortion: CameraDistortion, spacing: float = 24.0, dot_sigma: float = 2.0):
+    """The camera frame ``(frame_rows, frame_columns)`` of a calibration sheet: bright Gaussian dots of σ
+    ``dot_sigma`` pixels on a dark ground every ``spacing`` image pixels, one dot at the image's centre, the
+    sheet larger than the image (source 001, OPT: a regular grid photographed like the hardcopy)."""
+    v, u = jnp.meshgrid(jnp.arange(1.0, distortion.frame_rows + 1), jnp.arange(1.0, distortion.frame_columns + 1),
+                        indexing="ij")
+    pixel, scan = distortion.to_image(u, v)
+    centre_p, centre_s = 0.5 * (1 + distortion.image_pixels), 0.5 * (1 + distortion.image_scans)
+    dp = pixel - centre_p - spacing * jnp.round((pixel - centre_p) / spacing)
+    ds = scan - centre_s - spacing * jnp.round((scan - centre_s) / spacing)
+    return np.asarray(0.1 + 0.8 * jnp.exp(-0.5 * (dp**2 + ds**2) / dot_sigma**2))
