@@ -50,6 +50,12 @@ def _simulate(args) -> int:
     from seaice_jax.io.project import write_project
     from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
 
+    if args.scenario == "lancaster":
+        from seaice_jax.image_sequence import write_simulated_sequence
+
+        path = write_simulated_sequence(args.out, args.seed, args.images, args.size, args.clouds)
+        print(f"wrote {path} (images, control points, land_mask.npy)")
+        return 0
     if args.scenario == "aidjex":
         scenario = aidjex_scenario(args.seed, plan=FlightPlan(strips=args.strips), features=args.features)
     else:
@@ -69,6 +75,90 @@ def _block(args) -> int:
     print(run.report)
     print(f"wrote {len(run.files)} files into {args.out}")
     return 0
+
+
+def _remap(args) -> int:
+    from seaice_jax.image_sequence import run_remap
+
+    step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=not args.quiet)
+    print(step.report)
+    print(f"wrote {len(step.files)} files into {args.out}")
+    return 0
+
+
+def _track(args) -> int:
+    from seaice_jax.image_sequence import run_track
+    from seaice_jax.imagery.tracking import TrackingOptions
+
+    options = TrackingOptions(patch=args.patch, search=args.search, spacing=args.spacing,
+                              min_correlation=args.min_correlation, first_guess=args.first_guess)
+    step = run_track(args.remapped, args.out, options, tracking_sigma=args.tracking_sigma, progress=not args.quiet)
+    print(step.report)
+    print(f"wrote {len(step.files)} files into {args.out}")
+    return 0
+
+
+def _velocities(args) -> int:
+    from seaice_jax.image_sequence import run_velocities
+
+    step = run_velocities(args.records, args.out, projection=args.projection, box_size=args.box_km * 1000.0,
+                          velocity_sigma=args.velocity_sigma)
+    print(step.report)
+    print(f"wrote {len(step.files)} files into {args.out}")
+    return 0
+
+
+def _movie(args) -> int:
+    from seaice_jax.image_sequence import run_movie
+
+    step = run_movie(args.remapped, args.out, land_mask=args.land_mask, records=args.records, fps=args.fps,
+                     scale=args.scale)
+    print(step.report)
+    return 0
+
+
+def _sequence_commands(commands) -> None:
+    remap = commands.add_parser("remap", help="rectify an image-sequence project and remap it into its map grid")
+    remap.add_argument("project", help="sequence TOML")
+    remap.add_argument("--out", required=True, help="output folder (GeoTIFFs, remapped.npz, rectification.csv)")
+    remap.add_argument("--method", choices=["bilinear", "nearest"], default="bilinear")
+    remap.add_argument("--fill", type=int, default=1, help="passes of the 1985 fill over missing pixels (0: none)")
+    remap.add_argument("--quiet", action="store_true", help="no progress bars")
+    remap.set_defaults(run=_remap)
+
+    track = commands.add_parser("track", help="track the ice between consecutive remapped images")
+    track.add_argument("remapped", help="folder written by `seaice remap`")
+    track.add_argument("--out", required=True, help="output folder (CF-NetCDF drift, floes.csv, GeoJSON)")
+    track.add_argument("--patch", type=int, default=15, help="template side, pixels (odd)")
+    track.add_argument("--search", type=int, default=6, help="largest displacement searched, pixels")
+    track.add_argument("--spacing", type=int, default=8, help="pixels between tracked points")
+    track.add_argument("--min-correlation", type=float, default=0.6)
+    track.add_argument("--first-guess", choices=["zero", "features"], default="zero",
+                       help="features: ORB matches and a RANSAC similarity transform predict the motion")
+    track.add_argument("--tracking-sigma", type=float, default=0.2, help="σ of a tracked displacement, pixels")
+    track.add_argument("--quiet", action="store_true", help="no progress bars")
+    track.set_defaults(run=_track)
+
+    speeds = commands.add_parser("velocities", help="velocities, box averages, time series, deformation and "
+                                                    "trajectories from floe records")
+    speeds.add_argument("records", help="floe record CSV (floe_id,time,image,pixel,scan,latitude,longitude)")
+    speeds.add_argument("--out", required=True, help="output folder")
+    speeds.add_argument("--projection", choices=["nsidc-north", "nsidc-south"], default="nsidc-north",
+                        help="the grid whose axes the grid-relative components follow")
+    speeds.add_argument("--box-km", type=float, default=50.0, help="side of the averaging boxes, km")
+    speeds.add_argument("--velocity-sigma", type=float, default=None,
+                        help="σ of each velocity component (m/s) for the deformation's σ (default: 1 km "
+                             "position σ per fix)")
+    speeds.set_defaults(run=_velocities)
+
+    movie = commands.add_parser("movie", help="time-lapse film (GIF or MP4) of a remapped sequence")
+    movie.add_argument("remapped", help="folder written by `seaice remap`")
+    movie.add_argument("--out", required=True, help="film file, .gif or .mp4")
+    movie.add_argument("--land-mask", help=".npy bool array on the grid: land drawn filled")
+    movie.add_argument("--records", help="floe record CSV: the floes marked on every frame")
+    movie.add_argument("--fps", type=float, default=2.0)
+    movie.add_argument("--scale", type=int, default=2, help="pixel replication")
+    movie.set_defaults(run=_movie)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -103,12 +193,16 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument("--json", help="also write the report as JSON here")
     rectify.set_defaults(run=_rectify)
 
-    simulate = commands.add_parser("simulate", help="write a simulated radar project (TOML + CSV) with its truth")
-    simulate.add_argument("scenario", choices=["aidjex", "prudhoe"])
+    simulate = commands.add_parser("simulate", help="write a simulated radar project (TOML + CSV) with its truth, "
+                                                    "or an image sequence (lancaster)")
+    simulate.add_argument("scenario", choices=["aidjex", "prudhoe", "lancaster"])
     simulate.add_argument("--out", required=True, help="folder to write the project into")
     simulate.add_argument("--seed", type=int, default=0)
     simulate.add_argument("--strips", type=int, default=10, help="strips per coverage (aidjex)")
     simulate.add_argument("--features", type=int, default=600, help="ice features (aidjex)")
+    simulate.add_argument("--images", type=int, default=6, help="images of the sequence (lancaster)")
+    simulate.add_argument("--size", type=int, default=256, help="pixels and scan lines per image (lancaster)")
+    simulate.add_argument("--clouds", action="store_true", help="cloud patches on the images (lancaster)")
     simulate.set_defaults(run=_simulate)
 
     block = commands.add_parser("block", help="adjust a radar block project and measure the drift")
@@ -129,6 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="sweep delay and range scale per strip or one pair for the block")
     block.add_argument("--out", required=True, help="output folder")
     block.set_defaults(run=_block)
+    _sequence_commands(commands)
     return parser
 
 

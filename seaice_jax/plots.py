@@ -211,3 +211,64 @@ def plot_tie_discrepancies(path: str | os.PathLike, before, after) -> Path:
         ax.axhline(0, color="0.8", lw=0.5)
         ax.axvline(0, color="0.8", lw=0.5)
     return _save(fig, path)
+
+
+def plot_box_averages(path: str | os.PathLike, boxes, title: str, background=None) -> Path:
+    """Box-averaged velocity vectors with their standard-deviation rectangles at the arrow tips (source 001,
+    Figure 4-7): ``boxes`` a :class:`~seaice_jax.drift.kinematics.BoxAverages` (m, m/s)."""
+    from matplotlib.patches import Rectangle
+
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    if background is not None:
+        ax.scatter(*np.asarray(background).T / 1000.0, s=2, color="0.75", zorder=0)
+    speed = np.hypot(boxes.u, boxes.v)
+    reference = float(np.nanmax(speed)) if speed.size else 0.1
+    scale = max(reference, 1e-9) / (0.4 * float(np.nanmin(np.diff(np.unique(boxes.x))) / 1000.0)
+                                    if np.unique(boxes.x).size > 1 else 50.0)  # m/s per km of map
+    x, y = boxes.x / 1000.0, boxes.y / 1000.0
+    arrows = ax.quiver(x, y, boxes.u, boxes.v, angles="xy", scale_units="xy", scale=scale, width=0.004, color="C0")
+    for k in range(x.size):
+        tip = (x[k] + boxes.u[k] / scale, y[k] + boxes.v[k] / scale)
+        w, h = 2 * boxes.sigma_u[k] / scale, 2 * boxes.sigma_v[k] / scale
+        ax.add_patch(Rectangle((tip[0] - w / 2, tip[1] - h / 2), w, h, fill=False, color="C3", lw=0.8))
+        ax.annotate(str(boxes.count[k]), (x[k], y[k]), fontsize=6, color="0.3", xytext=(2, -8),
+                    textcoords="offset points")
+    ax.quiverkey(arrows, 0.82, 1.02, reference, f"{reference * 86.4:.1f} km/day", labelpos="E", coordinates="axes")
+    ax.plot([], [], color="C3", lw=0.8, label="±1 standard deviation")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("grid x (km)")
+    ax.set_ylabel("grid y (km)")
+    ax.set_title(title, fontsize=9)
+    return _save(fig, path)
+
+
+def plot_velocity_series(path: str | os.PathLike, series, title: str, epoch_label: str) -> Path:
+    """Box-averaged velocity per day (source 001, Figure 4-5): u and v (km/day) against days, one line per box."""
+    fig, axes = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+    for key, entry in series.items():
+        days = entry["time"] / 86400.0
+        for ax, component in zip(axes, ("u", "v"), strict=True):
+            ax.errorbar(days, entry[component] * 86.4, yerr=np.nan_to_num(entry[f"sigma_{component}"]) * 86.4,
+                        marker="o", ms=3, capsize=2, label=f"box {key}")
+    for ax, component in zip(axes, ("grid x", "grid y"), strict=True):
+        ax.axhline(0, color="0.6", lw=0.6)
+        ax.set_ylabel(f"{component} (km/day)")
+    axes[1].set_xlabel(f"days since {epoch_label}")
+    axes[0].legend(fontsize=7, ncol=4)
+    axes[0].set_title(title, fontsize=9)
+    return _save(fig, path)
+
+
+def plot_remapped(path: str | os.PathLike, images, titles, extent_km, vectors=None) -> Path:
+    """Remapped images side by side (NaN white); ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
+    count = len(images)
+    fig, axes = plt.subplots(1, count, figsize=(3.2 * count, 3.4), squeeze=False)
+    for k, ax in enumerate(axes[0]):
+        ax.imshow(np.ma.masked_invalid(images[k]), cmap="gray", extent=extent_km, origin="upper")
+        ax.set_title(titles[k], fontsize=8)
+        ax.set_xlabel("x (km)", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if k == 0 and vectors is not None:
+            ax.quiver(*vectors, angles="xy", scale_units="xy", scale=0.2, color="C1", width=0.006)
+    return _save(fig, path)

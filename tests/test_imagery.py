@@ -9,7 +9,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import ImageGrid, MapGrid
 from seaice_jax.imagery.remap import fill_holes, remap, swath_masks
 from seaice_jax.imagery.tracking import GOOD, LOW_CONTRAST, TrackingOptions, track
-from seaice_jax.simulate.satellite import simulate_sequence
+from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
 
 
 @pytest.fixture(scope="module")
@@ -117,11 +117,10 @@ def tracking_truth(sequence, grid, d, first, second):
     all pack ice or all static (the tracking patch sees one motion)."""
     scene = sequence.scene
     x, y = (np.asarray(a) for a in grid.to_xy(d.row, d.column))
-    xy = np.stack([x, y], -1)
-    pack = np.asarray(scene.is_pack(xy))
-    material = np.asarray(scene.material_position(xy, first.time))
-    end = np.where(pack[:, None], material + np.asarray(scene.displacement(material, second.time)), xy)
+    xy = np.stack([x, y], -1)  # the grid is in the scene's projection
+    end = xy + true_displacement(scene, xy, first.time, second.time)
     rows, columns = (np.asarray(a) for a in grid.to_pixel(end[:, 0], end[:, 1]))
+    pack = np.asarray(scene.is_pack(xy))
     margin = 12 * float(grid.pixel_width)
     offsets = [np.array([a, b]) for a in (-margin, 0, margin) for b in (-margin, 0, margin)]
     uniform = np.all([np.asarray(scene.is_pack(xy + o)) == pack for o in offsets], axis=0)

@@ -180,6 +180,9 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
     out = {k: np.full(n, np.nan) for k in ("d_row", "d_column", "correlation", "sharpness")}
     status = np.full(n, GOOD)
     for k in range(n):
+        if not (np.isfinite(rows[k]) and np.isfinite(columns[k])):
+            status[k] = NO_DATA
+            continue
         r, c = int(round(rows[k])), int(round(columns[k]))
         gr, gc = int(round(guess_row[k])), int(round(guess_column[k]))
         r2, c2 = r + gr, c + gc

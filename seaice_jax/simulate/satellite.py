@@ -317,7 +317,7 @@ def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interva
         control_points: per image, on land (fixed, known features such as capes and lakes).
         pointing_sigma: ``(pixel, scan)`` σ of the operator's pointing, in pixels (the video camera's vertical
             resolution was half its horizontal: source 001 section 4).
-        control_sigma: m, σ of the known positions (map accuracy).
+        control_sigma: m, σ of the known positions (map accuracy); each point's σ adds its pointing σ.
     """
     rng = np.random.default_rng(seed)
     scene = scene or ice_scene(rng)
@@ -353,11 +353,18 @@ def _land_control(scene, model, rng, count, pointing_sigma, control_sigma):
         for p, s, a, b in zip(pixel[on_land], scan[on_land], lat[on_land], lon[on_land], strict=True):
             if len(pixels) < count:
                 pixels.append(p), scans.append(s), lats.append(a), lons.append(b)
+    # the ground σ of each point: map accuracy and pointing (pixels times the ground size of a pixel there)
+    lat_p, lon_p = (np.asarray(a) for a in model._forward(np.array(pixels) + 1.0, np.array(scans)))
+    lat_s, lon_s = (np.asarray(a) for a in model._forward(np.array(pixels), np.array(scans) + 1.0))
+    lat0, lon0 = np.array(lats), np.array(lons)
+    size_p = MEAN_RADIUS * np.hypot(lat_p - lat0, (lon_p - lon0) * np.cos(lat0))
+    size_s = MEAN_RADIUS * np.hypot(lat_s - lat0, (lon_s - lon0) * np.cos(lat0))
+    sigma = np.sqrt(control_sigma**2 + 0.5 * ((pointing_sigma[0] * size_p) ** 2 + (pointing_sigma[1] * size_s) ** 2))
     pixels = np.array(pixels) + rng.normal(0, pointing_sigma[0], count)
     scans = np.array(scans) + rng.normal(0, pointing_sigma[1], count)
     lats = np.array(lats) + rng.normal(0, control_sigma, count) / MEAN_RADIUS
     lons = np.array(lons) + rng.normal(0, control_sigma, count) / (MEAN_RADIUS * np.cos(lats))
-    return ControlPoints(pixels, scans, lats, lons, control_sigma, [f"L{i + 1}" for i in range(count)])
+    return ControlPoints(pixels, scans, lats, lons, sigma, [f"L{i + 1}" for i in range(count)])
 
 
 def render_grid_target(distortion: CameraDistortion, spacing: float = 24.0, dot_sigma: float = 2.0):
@@ -371,3 +378,23 @@ def render_grid_target(distortion: CameraDistortion, spacing: float = 24.0, dot_
     dp = pixel - centre_p - spacing * jnp.round((pixel - centre_p) / spacing)
     ds = scan - centre_s - spacing * jnp.round((scan - centre_s) / spacing)
     return np.asarray(0.1 + 0.8 * jnp.exp(-0.5 * (dp**2 + ds**2) / dot_sigma**2))
+
+
+def scene_xy(scene: IceScene, grid) -> jnp.ndarray:
+    """Scene map coordinates ``(n_rows, n_columns, 2)`` of the pixel centres of a :class:`MapGrid`."""
+    latitude, longitude = grid.latitude_longitude()
+    return jnp.stack(scene.projection.forward(latitude, longitude), axis=-1)
+
+
+def land_mask(scene: IceScene, grid) -> np.ndarray:
+    """``(n_rows, n_columns)`` bool: land in the grid (the coastal-map overlay of the 1985 films)."""
+    return np.asarray(scene.coast_offset(scene_xy(scene, grid))) > 0
+
+
+def true_displacement(scene: IceScene, xy, start: float, end: float) -> np.ndarray:
+    """Where the surface at scene positions ``xy (n, 2)`` at time ``start`` is at ``end`` (s): pack ice moves,
+    land and fast ice stay; returns the displacement ``(n, 2)`` m."""
+    xy = jnp.asarray(xy, float)
+    material = scene.material_position(xy, start)
+    moved = material + scene.displacement(material, end)
+    return np.asarray(jnp.where(scene.is_pack(xy)[:, None], moved - xy, 0.0))

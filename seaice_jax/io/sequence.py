@@ -1,0 +1,206 @@
+"""Image-sequence projects: a TOML file naming the images, their times, scan models or control points, and the
+map grid to remap into, with the image and control files beside it.
+
+```toml
+epoch = "1983-03-08T00:00:00Z"        # time origin of the outputs (ISO 8601 UTC)
+
+[grid]
+projection = "nsidc-north"            # nsidc-north | nsidc-south | equirectangular (source 001's image grid)
+centre_deg = [74.0, -85.0]            # latitude, longitude of the grid's centre
+pixel_m = [2500.0, 2500.0]            # width, height
+shape = [150, 150]                    # rows, columns
+
+[[image]]
+name = "IMG01"
+time = "1983-03-08T01:12:00Z"
+file = "IMG01.npy"                    # .npy, .tif/.tiff or .png: rows = scan lines, columns = pixels
+satellite = "NOAA-7"
+altitude_m = 0.0                      # 0: curvature-corrected image
+control = "IMG01_control.csv"         # id,pixel,scan,latitude,longitude,sigma_m: fit the scan model ...
+# ... or give it: direction, scanner_angle_span_deg, subtrack_pixel, orbital_angle_first_deg,
+#     orbital_angle_span_deg, ascending_node_deg
+```
+
+Every error names the file (and line, or image) at fault; reading never writes anything.
+"""
+
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seaice_jax.adjust.orbit_fit import ControlPoints
+from seaice_jax.drift.records import format_time, parse_time
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
+from seaice_jax.geometry.scan import ScanModel, satellite_orbit
+from seaice_jax.io.files import atomic_path, write_csv
+from seaice_jax.io.project import _read_table
+
+MODEL_KEYS = ("scanner_angle_span_deg", "subtrack_pixel", "orbital_angle_first_deg", "orbital_angle_span_deg",
+              "ascending_node_deg")
+PROJECTIONS = ("nsidc-north", "nsidc-south", "equirectangular")
+
+
+@dataclass(frozen=True)
+class SequenceImage:
+    """One image of a sequence project: its pixels, time (s since the project's epoch), orbit, and either a
+    scan model or control points to fit one."""
+
+    name: str
+    time: float
+    data: np.ndarray
+    orbit: object
+    model: ScanModel | None
+    control: ControlPoints | None
+    direction: str
+
+
+@dataclass(frozen=True)
+class SequenceProject:
+    path: Path
+    epoch: str
+    grid: MapGrid
+    grid_spec: dict
+    images: tuple[SequenceImage, ...]
+
+
+def make_grid(projection: str, centre_deg, pixel_m, shape) -> MapGrid:
+    """The :class:`MapGrid` of a project's ``[grid]`` table."""
+    if projection not in PROJECTIONS:
+        raise SeaiceError(f"grid projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
+    lat, lon = np.radians(centre_deg[0]), np.radians(centre_deg[1])
+    if projection == "equirectangular":
+        metric = Equirectangular(lat, lon)
+    else:
+        metric = nsidc_polar_stereographic(projection.split("-")[1])
+    return MapGrid.centred(metric, lat, lon, float(pixel_m[0]), float(pixel_m[1]), int(shape[0]), int(shape[1]))
+
+
+def read_image_file(path: Path) -> np.ndarray:
+    """A single-band image as float64 ``(scan lines, pixels)``."""
+    if not path.exists():
+        raise SeaiceError(f"{path}: file not found")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        data = np.load(path, allow_pickle=False)
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        data = tifffile.imread(path)
+    elif suffix == ".png":
+        import cv2
+
+        data = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+        if data is None:
+            raise SeaiceError(f"{path}: not a readable PNG")
+    else:
+        raise SeaiceError(f"{path}: image files must be .npy, .tif or .png")
+    data = np.asarray(data, float)
+    if data.ndim != 2:
+        raise SeaiceError(f"{path}: a single-band image (2-D) is needed, got shape {data.shape}")
+    return data
+
+
+def _read_control(path: Path) -> ControlPoints:
+    columns = ("pixel", "scan", "latitude", "longitude", "sigma_m")
+    rows = _read_table(path, ("id", *columns), columns)
+    if not rows:
+        raise SeaiceError(f"{path}: no control points")
+    for line, row in rows:
+        if abs(row["latitude"]) > 90 or abs(row["longitude"]) > 180 or row["sigma_m"] <= 0:
+            raise SeaiceError(f"{path}, line {line}: point {row['id']}: latitude/longitude out of range or "
+                              "sigma_m not positive")
+    values = {c: np.array([row[c] for _, row in rows]) for c in columns}
+    return ControlPoints(values["pixel"], values["scan"], np.radians(values["latitude"]),
+                         np.radians(values["longitude"]), values["sigma_m"], [row["id"] for _, row in rows])
+
+
+def read_sequence(path: str | os.PathLike) -> SequenceProject:
+    """Read and check a sequence project (see the module docstring)."""
+    path = Path(path)
+    if not path.exists():
+        raise SeaiceError(f"{path}: file not found")
+    try:
+        document = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise SeaiceError(f"{path}: {error}") from None
+    try:
+        epoch = format_time(parse_time(document.get("epoch", "")))
+    except ValueError:
+        raise SeaiceError(f"{path}: epoch {document.get('epoch')!r} is not an ISO 8601 date-time") from None
+    spec = document.get("grid")
+    if not isinstance(spec, dict):
+        raise SeaiceError(f"{path}: a [grid] table is needed")
+    try:
+        grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
+    except (KeyError, TypeError, IndexError) as error:
+        raise SeaiceError(f"{path}: [grid] needs centre_deg, pixel_m and shape ({error})") from None
+    images, names = [], set()
+    for k, entry in enumerate(document.get("image", [])):
+        name = str(entry.get("name", f"image {k + 1}"))
+        label = f"{path}: image {name!r}"
+        if name in names:
+            raise SeaiceError(f"{label}: duplicate image name")
+        names.add(name)
+        try:
+            time = (parse_time(entry["time"]) - parse_time(epoch)).total_seconds()
+        except (KeyError, ValueError):
+            raise SeaiceError(f"{label}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
+        if "file" not in entry:
+            raise SeaiceError(f"{label}: no file")
+        data = read_image_file(path.parent / entry["file"])
+        try:
+            orbit = satellite_orbit(entry.get("satellite", "NOAA-7"), altitude=float(entry.get("altitude_m", 0.0)))
+        except ValueError as error:
+            raise SeaiceError(f"{label}: {error}") from None
+        direction = entry.get("direction", "auto")
+        model = control = None
+        if "control" in entry:
+            control = _read_control(path.parent / entry["control"])
+        elif all(key in entry for key in MODEL_KEYS):
+            if direction not in ("south", "north"):
+                raise SeaiceError(f"{label}: a given scan model needs direction = 'south' or 'north'")
+            model = ScanModel(np.radians(entry["scanner_angle_span_deg"]), float(entry["subtrack_pixel"]),
+                              np.radians(entry["orbital_angle_first_deg"]), np.radians(entry["orbital_angle_span_deg"]),
+                              np.radians(entry["ascending_node_deg"]), orbit, direction, data.shape[1], data.shape[0])
+        else:
+            raise SeaiceError(f"{label}: give either control = 'file.csv' or the scan model "
+                              f"({', '.join(MODEL_KEYS)})")
+        images.append(SequenceImage(name, time, data, orbit, model, control, direction))
+    if not images:
+        raise SeaiceError(f"{path}: no [[image]] entries")
+    times = [im.time for im in images]
+    if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+        raise SeaiceError(f"{path}: image times must increase in the order listed")
+    return SequenceProject(path, epoch, grid, dict(spec), tuple(images))
+
+
+def write_sequence(sequence, out_dir: str | os.PathLike, grid_spec: dict, satellite: str = "NOAA-7") -> Path:
+    """Write a simulated :class:`~seaice_jax.simulate.satellite.ImageSequence` as a project: the images
+    (``.npy``), their control points (CSV) and ``sequence.toml`` (written last, so a complete project is one with
+    its TOML file)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    epoch = parse_time(sequence.epoch)
+    lines = [f'epoch = "{format_time(epoch)}"', "", "[grid]", f'projection = "{grid_spec["projection"]}"',
+             f"centre_deg = {list(map(float, grid_spec['centre_deg']))}",
+             f"pixel_m = {list(map(float, grid_spec['pixel_m']))}", f"shape = {list(map(int, grid_spec['shape']))}"]
+    for image in sequence.images:
+        with atomic_path(out / f"{image.name}.npy") as temporary, open(temporary, "wb") as stream:
+            np.save(stream, image.data)
+        c = image.control
+        write_csv(out / f"{image.name}_control.csv", {
+            "id": np.array(c.ids), "pixel": np.asarray(c.pixel), "scan": np.asarray(c.scan),
+            "latitude": np.degrees(np.asarray(c.latitude)), "longitude": np.degrees(np.asarray(c.longitude)),
+            "sigma_m": np.asarray(c.sigma)}, float_format="%.10g")
+        moment = format_time(parse_time(sequence.epoch).fromtimestamp(epoch.timestamp() + image.time, epoch.tzinfo))
+        lines += ["", "[[image]]", f'name = "{image.name}"', f'time = "{moment}"', f'file = "{image.name}.npy"',
+                  f'satellite = "{satellite}"', f"altitude_m = {float(image.model.orbit.altitude)!r}",
+                  f'direction = "{image.model.direction}"', f'control = "{image.name}_control.csv"']
+    path = out / "sequence.toml"
+    with atomic_path(path) as temporary:
+        temporary.write_text("\n".join(lines) + "\n")
+    return path
