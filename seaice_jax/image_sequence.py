@@ -13,11 +13,10 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model, position_uncertainty
+from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model, position_uncertainty
 from seaice_jax.drift.kinematics import box_averages, box_time_series, deformation, grid_to_east_north, velocities
 from seaice_jax.drift.records import FloeRecords, format_time, parse_time, read_records, write_records
 from seaice_jax.errors import SeaiceError
-from seaice_jax.geometry.earth import wrap_angle
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.geometry.scan import Orbit, ScanModel
 from seaice_jax.imagery.movie import render_frames, write_movie
@@ -65,7 +64,7 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
         fit = fit_scan_model(image.control, image.orbit, direction=image.direction, n_pixels=image.data.shape[1],
                              n_scans=image.data.shape[0])
         models.append(fit.model)
-        north, east = _control_deviations(fit.model, image.control)
+        north, east = control_point_deviations(fit.model, image.control)
         deviations["image"] += [image.name] * north.size
         deviations["point"] += list(image.control.ids)
         deviations["north_km"].append(north / 1000)
@@ -105,15 +104,6 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
               f"{float(grid.pixel_width):.0f} x {float(grid.pixel_height):.0f} m ({method}, fill {fill}):", *lines]
     return Step(tuple(files), "\n".join(report), dict(values=values, valid=valid, models=models, grid=grid,
                                                       times=times, names=names, epoch=project.epoch))
-
-
-def _control_deviations(model: ScanModel, control):
-    """North and east deviations (m) of the model's positions of the control points from their known ones."""
-    lat, lon = (np.asarray(a) for a in model.forward(control.pixel, control.scan))
-    radius = float(model.orbit.radius)
-    known_lat = np.asarray(control.latitude)
-    return ((lat - known_lat) * radius,
-            np.asarray(wrap_angle(lon - np.asarray(control.longitude))) * radius * np.cos(known_lat))
 
 
 def load_remapped(directory: str | os.PathLike) -> dict:

@@ -312,6 +312,15 @@ def check_point_errors(model: ScanModel, check: ControlPoints):
     return np.asarray(great_circle_distance(lat, lon, check.latitude, check.longitude, model.orbit.radius)) / 1000.0
 
 
+def control_point_deviations(model: ScanModel, control: ControlPoints):
+    """North and east deviations (m) of the model's positions of control points from their known positions (the
+    1985 VHR2 printout's DLAT and DLONG, in metres on the sphere)."""
+    lat, lon = (np.asarray(a) for a in model.forward(control.pixel, control.scan))
+    radius = float(model.orbit.radius)
+    known = np.asarray(control.latitude)
+    return (lat - known) * radius, np.asarray(_wrap(lon - np.asarray(control.longitude))) * radius * np.cos(known)
+
+
 def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):
     """Standard deviations (m) of the ground position of image points, from the fit's covariance.
 

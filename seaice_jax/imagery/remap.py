@@ -39,8 +39,15 @@ def _remap_one(image, model: ScanModel, latitude, longitude, method):
 
 
 @eqx.filter_jit
-def _remap_batch(images, models, latitude, longitude, method):
+def _remap_batch(images, models, grid, method):
+    latitude, longitude = grid.latitude_longitude()
     return jax.vmap(_remap_one, in_axes=(0, 0, None, None, None))(images, models, latitude, longitude, method)
+
+
+@eqx.filter_jit
+def _swath(model, grid):
+    pixel, scan = model.inverse(*grid.latitude_longitude())
+    return (pixel >= 0.5) & (pixel <= model.n_pixels + 0.5) & (scan >= 0.5) & (scan <= model.n_scans + 0.5)
 
 
 def stack_models(models):
@@ -76,7 +83,6 @@ def remap(images, models, grid: MapGrid, method: str = "bilinear", fill: int = 0
         if np.shape(image) != (model.n_scans, model.n_pixels):
             raise SeaiceError(f"image {k}: shape {np.shape(image)} does not match its scan model "
                               f"({model.n_scans} scan lines x {model.n_pixels} pixels)")
-    latitude, longitude = grid.latitude_longitude()
     values = np.full((len(images), *grid.shape), np.nan)
     valid = np.zeros((len(images), *grid.shape), bool)
     groups = {}
@@ -84,7 +90,7 @@ def remap(images, models, grid: MapGrid, method: str = "bilinear", fill: int = 0
         groups.setdefault((model.direction, model.n_pixels, model.n_scans), []).append(k)
     for members in groups.values():
         batch = jnp.stack([jnp.asarray(images[k], float) for k in members])
-        v, ok = _remap_batch(batch, stack_models([models[k] for k in members]), latitude, longitude, method)
+        v, ok = _remap_batch(batch, stack_models([models[k] for k in members]), grid, method)
         values[members], valid[members] = np.asarray(v), np.asarray(ok)
     if fill:
         swaths = swath_masks(models, grid)
@@ -97,13 +103,7 @@ def remap(images, models, grid: MapGrid, method: str = "bilinear", fill: int = 0
 
 def swath_masks(models, grid: MapGrid):
     """``(k, n_rows, n_columns)`` bool: where each model's image covers the grid (whatever the data)."""
-    latitude, longitude = grid.latitude_longitude()
-    masks = []
-    for model in models:
-        pixel, scan = model.inverse(latitude, longitude)
-        masks.append(np.asarray((pixel >= 0.5) & (pixel <= model.n_pixels + 0.5) & (scan >= 0.5)
-                                & (scan <= model.n_scans + 0.5)))
-    return np.stack(masks)
+    return np.stack([np.asarray(_swath(model, grid)) for model in models])
 
 
 @jax.jit

@@ -224,6 +224,16 @@ def place_pass(template: ScanModel, latitude, longitude, iterations: int = 8) ->
                        replace=(unknowns[0], unknowns[1]))
 
 
+def noaa_pass(direction: str, size: int, latitude, longitude, subtrack_pixel=None) -> ScanModel:
+    """A NOAA-7-like ``size`` x ``size`` image (the swath of :func:`noaa_image`, sampled at ``size``) centred on
+    ``(latitude, longitude)`` radians; ``subtrack_pixel`` default: the image's middle column."""
+    template = noaa_image(direction)
+    subtrack = 0.5 * (1 + size) if subtrack_pixel is None else subtrack_pixel
+    template = ScanModel(template.scanner_angle_span, subtrack, template.orbital_angle_first,
+                         template.orbital_angle_span, template.ascending_node, template.orbit, direction, size, size)
+    return place_pass(template, latitude, longitude)
+
+
 class CameraDistortion(eqx.Module):
     """The re-digitizing video camera of source 001 (section 3.3): radial lens distortion and a non-square frame.
 
@@ -325,12 +335,9 @@ def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interva
     images = []
     for k in range(n_images):
         direction = "south" if k % 2 == 0 else "north"
-        template = noaa_image(direction)
-        template = ScanModel(template.scanner_angle_span, 0.5 * (1 + size) + rng.normal(0, 0.1 * size),
-                             template.orbital_angle_first, template.orbital_angle_span, template.ascending_node,
-                             template.orbit, direction, size, size)
         offset = rng.normal(0.0, 60_000.0, 2) / MEAN_RADIUS  # the pass's centre wanders ±60 km
-        model = place_pass(template, lat0 + offset[0], lon0 + offset[1] / np.cos(lat0))
+        model = noaa_pass(direction, size, lat0 + offset[0], lon0 + offset[1] / np.cos(lat0),
+                          0.5 * (1 + size) + rng.normal(0, 0.1 * size))
         time = k * interval_days * DAY + rng.uniform(-3, 3) * 3600.0
         cloud = None
         if clouds and k > 0:
