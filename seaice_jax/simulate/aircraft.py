@@ -25,10 +25,10 @@ import numpy as np
 
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_east, unit_vector
 from seaice_jax.geometry.projections import TangentPlane
-from seaice_jax.geometry.range_doppler import imaging_time_and_range
+from seaice_jax.geometry.range_doppler import imaging_time_and_range, look_sign
 from seaice_jax.geometry.trajectory import CircularTrajectory
 from seaice_jax.sensors.navigation import SCHULER_PERIOD
-from seaice_jax.sensors.strips import Measurements, StripRecord
+from seaice_jax.sensors.strips import Measurements, StripRecord, image_to_ground
 
 _DEG = np.pi / 180.0
 
@@ -353,3 +353,23 @@ def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_po
         control = {i: (*(positions[i] + rng.normal(0.0, map_sigma, 2)), map_sigma) for i in range(control_points)}
         coverages.append(Coverage(f"day {5 * day}", day * 5 * 86400.0, strips, measurements, positions, control))
     return Scenario("prudhoe", plane, plan, errors, kinds, tuple(coverages))
+
+
+def render_strip(scene, strip: StripRecord, pixel_size: float = 0.05, radius: float = MEAN_RADIUS):
+    """The radar image of ``scene`` (:class:`~seaice_jax.simulate.satellite.IceScene`, at time 0) on ``strip``'s
+    film: a :class:`~seaice_jax.imagery.remap.StripRaster` of ``pixel_size`` mm from the first to the last time
+    mark and from the nearest to the farthest range of the swath, each pixel the brightness of its ground point on
+    the true trajectory with the true radar constants (NaN where the range is shorter than the flying height)."""
+    from seaice_jax.imagery.remap import StripRaster
+
+    c, f = strip.true_sweep_delay, strip.true_range_scale
+    altitude = float(np.median(strip.record_altitudes))
+    y_near, y_far = altitude / f - c, 4.0 * altitude / f - c
+    x = np.arange(strip.mark_x[0], strip.mark_x[-1], pixel_size)
+    y = np.arange(y_near, y_far, pixel_size)
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    ground = image_to_ground(strip.truth, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times), jnp.asarray(xx),
+                             jnp.asarray(yy), c, f, look_sign(strip.look_side), radius)
+    lat, lon = latitude_longitude(ground)
+    xy = jnp.stack(scene.projection.forward(lat, lon), axis=-1)
+    return StripRaster(np.asarray(scene.brightness(xy, 0.0)), x[0], y[0], pixel_size)
