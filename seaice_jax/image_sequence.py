@@ -6,7 +6,7 @@ Each step computes everything before it writes, and writes atomically; the CLI's
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -25,7 +25,7 @@ from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_poin
 from seaice_jax.io.files import atomic_path, write_csv
 from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
 from seaice_jax.io.sequence import make_grid, read_sequence
-from seaice_jax.plots import plot_box_averages, plot_remapped, plot_velocity_series
+from seaice_jax.plots import plot_box_averages, plot_remapped, plot_trajectories, plot_velocity_series
 
 _MODEL_FIELDS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
                  "ascending_node")
@@ -163,9 +163,16 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
                                          map_vectors["dx"] / interval, map_vectors["dy"] / interval)
         fields["u_east"] = np.where(good, east, np.nan).reshape(lattice_shape)
         fields["v_north"] = np.where(good, north, np.nan).reshape(lattice_shape)
+        rates = None
+        if good.sum() >= 3:  # deformation of the Delaunay triangles of the good vectors (lattice indices)
+            index = np.nonzero(good)[0]
+            start_xy = np.stack([map_vectors["x"], map_vectors["y"]], 1)[index]
+            velocity = np.stack([map_vectors["dx"], map_vectors["dy"]], 1)[index] / interval
+            rates = deformation(start_xy, velocity, sigma[index] / interval)
+            rates = replace(rates, triangles=index[rates.triangles])
         files.append(write_drift_netcdf(out / f"drift_{names[k]}_{names[k + 1]}.nc", lattice, fields, times[k],
                                         times[k + 1], stack["epoch"], STATUS,
-                                        title=f"Sea-ice drift {names[k]} to {names[k + 1]}"))
+                                        title=f"Sea-ice drift {names[k]} to {names[k + 1]}", deformation=rates))
         chained = track(values[k], values[k + 1], options, points=(floe_row, floe_column), valid_first=valid[k],
                         valid_second=valid[k + 1])
         alive &= chained.good
@@ -273,6 +280,7 @@ def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, 
                                                          else np.array(val) for k, val in rows.items()}))
     files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
                                             records.latitude, records.longitude, records.epoch))
+    files.append(plot_trajectories(out / "trajectories.png", records.floe, x, y, "Floe trajectories (start: dot)"))
     speed = v.speed * 86.4
     report = [f"{len(v.floe)} velocities of {len(set(records.floe.tolist()))} floes: median speed "
               f"{np.median(speed):.1f} km/day (max {speed.max():.1f}); {len(boxes.x)} boxes of "

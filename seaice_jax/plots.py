@@ -272,3 +272,19 @@ def plot_remapped(path: str | os.PathLike, images, titles, extent_km, vectors=No
         if k == 0 and vectors is not None:
             ax.quiver(*vectors, angles="xy", scale_units="xy", scale=0.2, color="C1", width=0.006)
     return _save(fig, path)
+
+
+def plot_trajectories(path: str | os.PathLike, floe, x, y, title: str, limit: int = 400) -> Path:
+    """Floe trajectories (source 001, Figure 4-3): one line per floe through its fixes (m, in time order of the
+    rows), a dot at its first fix; at most ``limit`` floes drawn."""
+    floe, x, y = np.asarray(floe), np.asarray(x, float), np.asarray(y, float)
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    for f in list(dict.fromkeys(floe.tolist()))[:limit]:
+        at = floe == f
+        ax.plot(x[at] / 1000.0, y[at] / 1000.0, lw=0.7, color="C0")
+        ax.plot(x[at][:1] / 1000.0, y[at][:1] / 1000.0, ".", ms=3, color="C3")
+    ax.set_aspect("equal")
+    ax.set_xlabel("grid x (km)")
+    ax.set_ylabel("grid y (km)")
+    ax.set_title(title, fontsize=9)
+    return _save(fig, path)

@@ -54,6 +54,9 @@ def test_track_writes_cf_drift_whose_vectors_follow_the_ice(workflow):
         sigma = ds["dX_uncertainty"].values[0]
         assert ds["u_grid"].attrs["long_name"].startswith("velocity along the grid's x axis")
         assert ds["u_east"].attrs["standard_name"] == "eastward_sea_ice_velocity"
+        assert ds["divergence"].size > 10 and "divergence_uncertainty" in ds["divergence"].attrs[
+            "ancillary_variables"]
+        assert np.all(ds["divergence_uncertainty"].values > 0)
     good = np.isfinite(dx)
     assert good.mean() > 0.5
     first, second = sequence.images[:2]
@@ -73,7 +76,7 @@ def test_velocities_and_film(workflow):
 
     root, _ = workflow
     for name in ("velocities.csv", "box_averages.csv", "box_averages.png", "velocity_series.png",
-                 "deformation.csv", "trajectories.geojson"):
+                 "deformation.csv", "trajectories.geojson", "trajectories.png"):
         assert (root / "velocities" / name).stat().st_size > 0
     table = np.genfromtxt(root / "velocities" / "velocities.csv", delimiter=",", names=True, dtype=None,
                           encoding=None)
