@@ -27,10 +27,12 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from scipy.linalg import block_diag  # noqa: E402
 
-from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model, position_uncertainty  # noqa: E402
+from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model  # noqa: E402
 from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle  # noqa: E402
 from seaice_jax.geometry.projections import MapGrid  # noqa: E402
+from seaice_jax.image_sequence import displacement_sigma  # noqa: E402
 from seaice_jax.imagery.remap import remap  # noqa: E402
 from seaice_jax.imagery.tracking import track  # noqa: E402
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement  # noqa: E402
@@ -65,9 +67,9 @@ def realization(seed, images):
         north, east = control_point_deviations(fit.model, image.control)
         out["north"].append(north), out["east"].append(east), out["distance"].append(np.hypot(north, east))
         out["model"].append(model_error(fit.model, image.model, rng))
+    covariance = block_diag(*[np.asarray(f.adjustment.covariance) for f in fits])
     fitted, _ = remap([im.data for im in sequence.images], [f.model for f in fits], grid)
     true_maps, _ = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
-    latitude, longitude = grid.latitude_longitude()
     for k in range(images - 1):
         first, second = sequence.images[k], sequence.images[k + 1]
         interval = (second.time - first.time) / 86400.0
@@ -82,15 +84,9 @@ def realization(seed, images):
             if label == "auto_fitted":
                 out["speed_true"].append(np.hypot(*truth.T) / interval / 1000)
                 out["speed_auto"].append(np.hypot(*measured.T) / interval / 1000)
-                rows, cols = np.round(d.row[pack]).astype(int), np.round(d.column[pack]).astype(int)
-                sigma = []
-                for fit, (r, c) in ((fits[k], (rows, cols)), (fits[k + 1], (
-                        np.clip(np.round(d.row[pack] + d.d_row[pack]).astype(int), 0, grid.n_rows - 1),
-                        np.clip(np.round(d.column[pack] + d.d_column[pack]).astype(int), 0, grid.n_columns - 1)))):
-                    pixel, scan = fit.model.inverse(np.asarray(latitude)[r, c], np.asarray(longitude)[r, c])
-                    sn, se = (np.asarray(a) for a in position_uncertainty(fit, pixel, scan))
-                    sigma.append(0.5 * (sn**2 + se**2))
-                out["auto_sigma"].append(np.sqrt(sigma[0] + sigma[1] + (0.2 * 1200.0) ** 2))
+                stack = {"models": [f.model for f in fits], "grid": grid, "covariance": covariance}
+                chosen = {key: value[pack] for key, value in vectors.items()}
+                out["auto_sigma"].append(displacement_sigma(stack, k, chosen, 0.2 * 1200.0))
         # manual: a technician marks MANUAL_FLOES pack floes in both images (cursor noise), the ICE module maps
         # each mark through that image's fitted model
         candidates = np.stack([np.asarray(a) for a in grid.xy()], -1).reshape(-1, 2)

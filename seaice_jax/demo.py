@@ -70,7 +70,7 @@ def _compare_methods(scenario, runs) -> list[str]:
 def _image_sequence(out_dir: Path):
     """Four simulated NOAA-7-like images of moving pack ice (one cloudy) through the whole workflow, and the
     tracked drift against the simulation's truth."""
-    sequence = simulate_sequence(0, n_images=4, size=192, clouds=True)
+    sequence = simulate_sequence(0, n_images=4, size=160, clouds=True)
     project = write_simulated_sequence(out_dir / "project", sequence=sequence)
     remapped = run_remap(project, out_dir / "remapped", progress=False)
     tracked = run_track(out_dir / "remapped", out_dir / "drift", progress=False)

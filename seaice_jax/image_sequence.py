@@ -13,8 +13,20 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model, position_uncertainty
-from seaice_jax.drift.kinematics import box_averages, box_time_series, deformation, grid_to_east_north, velocities
+from seaice_jax.adjust.orbit_fit import (
+    control_point_deviations,
+    fit_scan_model,
+    position_jacobian,
+    propagate_position_sigma,
+)
+from seaice_jax.drift.kinematics import (
+    box_averages,
+    box_time_series,
+    deformation,
+    east_north_axes,
+    grid_to_east_north,
+    velocities,
+)
 from seaice_jax.drift.records import FloeRecords, format_time, parse_time, read_records, write_records
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import MapGrid
@@ -48,35 +60,42 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
               fill: int = 1, progress: bool = True) -> Step:
     """Rectify (fit the scan model of every image with control points) and remap the sequence into its grid.
 
-    Writes ``<image>.tif`` (GeoTIFF), ``remapped.npz`` (the stack, validity masks, times, scan models, and the
-    geolocation σ of every grid pixel from each fit's covariance), ``rectification.csv`` (control-point
-    deviations per image, as the 1985 VHR2 printout) and ``remapped.png``."""
+    Writes ``<image>.tif`` (GeoTIFF), ``remapped.npz`` (the stack, validity masks, times, scan models, their
+    covariance — block-diagonal, one fit per image — and the geolocation σ of every grid pixel),
+    ``rectification.csv`` (control-point deviations per image, as the 1985 VHR2 printout) and ``remapped.png``."""
     project = read_sequence(project_path)
     out = Path(out_dir)
     grid = project.grid
-    models, sigma_maps, lines, deviations = [], [], [], {k: [] for k in ("image", "point", "north_km", "east_km")}
-    for image in tqdm(project.images, desc="rectify", disable=not progress, leave=False):
+    models, lines, deviations = [], [], {k: [] for k in ("image", "point", "north_km", "east_km")}
+    covariance = np.zeros((5 * len(project.images),) * 2)
+    for k, image in enumerate(tqdm(project.images, desc="rectify", disable=not progress, leave=False)):
         if image.model is not None:
             models.append(image.model)
-            sigma_maps.append(np.zeros(grid.shape))
             lines.append(f"  {image.name}: scan model given ({image.model.direction}bound)")
             continue
         fit = fit_scan_model(image.control, image.orbit, direction=image.direction, n_pixels=image.data.shape[1],
                              n_scans=image.data.shape[0])
         models.append(fit.model)
-        north, east = control_point_deviations(fit.model, image.control)
-        deviations["image"] += [image.name] * north.size
-        deviations["point"] += list(image.control.ids)
-        deviations["north_km"].append(north / 1000)
-        deviations["east_km"].append(east / 1000)
-        latitude, longitude = grid.latitude_longitude()
-        pixel, scan = fit.model.inverse(latitude, longitude)
-        sn, se = (np.asarray(a) for a in position_uncertainty(fit, pixel, scan))
+        covariance[5 * k:5 * k + 5, 5 * k:5 * k + 5] = np.asarray(fit.adjustment.covariance)
+        lines.append(f"  {image.name}: {fit.model.direction}bound, {len(image.control)} control points, "
+                     f"σ̂0 {float(fit.adjustment.sigma0):.2f}")
+    for image, model in zip(project.images, models, strict=True):
+        if image.control is not None:
+            north, east = control_point_deviations(model, image.control)
+            deviations["image"] += [image.name] * north.size
+            deviations["point"] += list(image.control.ids)
+            deviations["north_km"].append(north / 1000)
+            deviations["east_km"].append(east / 1000)
+            distance = np.hypot(north, east) / 1000
+            lines.append(f"  {image.name}: control-point deviation mean {distance.mean():.2f} km (max N-S "
+                         f"{np.abs(north).max() / 1000:.2f}, E-W {np.abs(east).max() / 1000:.2f} km)")
+    latitude, longitude = grid.latitude_longitude()
+    sigma_maps = []
+    for k, model in enumerate(models):
+        pixel, scan = model.inverse(latitude, longitude)
+        sn, se = (np.asarray(a) for a in propagate_position_sigma(model, covariance[5 * k:5 * k + 5,
+                                                                                    5 * k:5 * k + 5], pixel, scan))
         sigma_maps.append(np.sqrt(0.5 * (sn**2 + se**2)))
-        distance = np.hypot(north, east) / 1000
-        lines.append(f"  {image.name}: {fit.model.direction}bound, {north.size} control points, mean deviation "
-                     f"{distance.mean():.2f} km (max N-S {np.abs(north).max() / 1000:.2f}, E-W "
-                     f"{np.abs(east).max() / 1000:.2f} km), σ̂0 {float(fit.adjustment.sigma0):.2f}")
     values, valid = remap([im.data for im in project.images], models, grid, method=method, fill=fill)
     names = [im.name for im in project.images]
     times = np.array([im.time for im in project.images])
@@ -87,7 +106,8 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
     with atomic_path(out / "remapped.npz") as temporary, open(temporary, "wb") as stream:
         np.savez_compressed(stream, values=values, valid=valid, times=times, names=np.array(names),
                             epoch=project.epoch, grid=json.dumps(project.grid_spec), sigma=np.stack(sigma_maps),
-                            parameters=parameters, directions=np.array([m.direction for m in models]),
+                            covariance=covariance, parameters=parameters,
+                            directions=np.array([m.direction for m in models]),
                             shapes=np.array([[m.n_scans, m.n_pixels] for m in models]),
                             orbits=np.array([[float(m.orbit.inclination), float(m.orbit.period),
                                               float(m.orbit.altitude), float(m.orbit.earth_day),
@@ -103,7 +123,8 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
     report = [f"remapped {len(names)} images into a {grid.n_rows} x {grid.n_columns} grid of "
               f"{float(grid.pixel_width):.0f} x {float(grid.pixel_height):.0f} m ({method}, fill {fill}):", *lines]
     return Step(tuple(files), "\n".join(report), dict(values=values, valid=valid, models=models, grid=grid,
-                                                      times=times, names=names, epoch=project.epoch))
+                                                       times=times, names=names, epoch=project.epoch,
+                                                       covariance=covariance))
 
 
 def load_remapped(directory: str | os.PathLike) -> dict:
@@ -119,7 +140,7 @@ def load_remapped(directory: str | os.PathLike) -> dict:
         stored["parameters"], stored["orbits"], stored["directions"], stored["shapes"], strict=True)]
     return dict(values=stored["values"], valid=stored["valid"], times=stored["times"],
                 names=[str(n) for n in stored["names"]], epoch=str(stored["epoch"]), sigma=stored["sigma"],
-                grid=grid, models=models)
+                covariance=stored["covariance"], grid=grid, models=models)
 
 
 def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
@@ -148,15 +169,12 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
     for k in tqdm(range(len(names) - 1), desc="track", disable=not progress, leave=False):
         pair = track(values[k], values[k + 1], options, valid_first=valid[k], valid_second=valid[k + 1])
         good = pair.good
-        pixel = float(grid.pixel_width)
-        sigma = np.sqrt((tracking_sigma * pixel) ** 2 + _at(stack["sigma"][k], rows, columns) ** 2
-                        + _at(stack["sigma"][k + 1], rows + np.nan_to_num(pair.d_row),
-                              columns + np.nan_to_num(pair.d_column)) ** 2)
         map_vectors = pair.in_map(grid)
+        sigma = displacement_sigma(stack, k, map_vectors, tracking_sigma * float(grid.pixel_width))
         fields = {"dX": np.where(good, map_vectors["dx"], np.nan).reshape(lattice_shape),
                   "dY": np.where(good, map_vectors["dy"], np.nan).reshape(lattice_shape),
-                  "dX_uncertainty": np.where(good, sigma, np.nan).reshape(lattice_shape),
-                  "dY_uncertainty": np.where(good, sigma, np.nan).reshape(lattice_shape),
+                  "dX_uncertainty": np.where(good, sigma[:, 0], np.nan).reshape(lattice_shape),
+                  "dY_uncertainty": np.where(good, sigma[:, 1], np.nan).reshape(lattice_shape),
                   "status_flag": pair.status.reshape(lattice_shape)}
         interval = times[k + 1] - times[k]
         east, north = grid_to_east_north(grid.projection, map_vectors["x"], map_vectors["y"],
@@ -168,7 +186,7 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
             index = np.nonzero(good)[0]
             start_xy = np.stack([map_vectors["x"], map_vectors["y"]], 1)[index]
             velocity = np.stack([map_vectors["dx"], map_vectors["dy"]], 1)[index] / interval
-            rates = deformation(start_xy, velocity, sigma[index] / interval)
+            rates = deformation(start_xy, velocity, sigma[index] / interval)  # (relative errors: conservative)
             rates = replace(rates, triangles=index[rates.triangles])
         files.append(write_drift_netcdf(out / f"drift_{names[k]}_{names[k + 1]}.nc", lattice, fields, times[k],
                                         times[k + 1], stack["epoch"], STATUS,
@@ -194,6 +212,27 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
     return Step(tuple(files), "\n".join(report), dict(records=records, lattice=lattice))
 
 
+def displacement_sigma(stack, k, vectors, tracking_sigma: float):
+    """σ ``(n, 2)`` (m, along the grid's x and y) of displacements from image ``k`` to ``k + 1``: the geolocation
+    errors of both images at the vector's start and end through their scan models' joint covariance (the
+    cross-covariance of co-registered images included), plus ``tracking_sigma`` m per coordinate."""
+    models, grid = stack["models"], stack["grid"]
+    covariance = stack["covariance"][5 * k:5 * k + 10, 5 * k:5 * k + 10]
+    jacobians = []
+    for model, x, y in ((models[k], vectors["x"], vectors["y"]),
+                        (models[k + 1], vectors["x"] + np.nan_to_num(vectors["dx"]),
+                         vectors["y"] + np.nan_to_num(vectors["dy"]))):
+        lat, lon = grid.projection.inverse(x, y)
+        pixel, scan = model.inverse(lat, lon)
+        jacobians.append(np.asarray(position_jacobian(model, pixel, scan)))  # (n, 2 north/east, 5)
+    design = np.concatenate([-jacobians[0], jacobians[1]], axis=2)  # end minus start
+    north_east = np.einsum("nij,jk,nlk->nil", design, covariance, design)
+    east_dir, north_dir = east_north_axes(grid.projection, vectors["x"], vectors["y"])
+    rotation = np.stack([north_dir, east_dir], axis=2)  # grid components of (north, east)
+    on_grid = np.einsum("nij,njk,nlk->nil", rotation, north_east, rotation)
+    return np.sqrt(np.diagonal(on_grid, axis1=1, axis2=2) + tracking_sigma**2)
+
+
 def make_lattice(grid, rows, columns, shape):
     """The :class:`MapGrid` of the tracking lattice (every ``spacing``-th pixel of ``grid``)."""
     step_r = (rows.max() - rows.min()) / max(shape[0] - 1, 1)
@@ -201,12 +240,6 @@ def make_lattice(grid, rows, columns, shape):
     x0, y0 = grid.to_xy(rows.min(), columns.min())
     return MapGrid(grid.projection, x0, y0, float(grid.pixel_width) * step_c, float(grid.pixel_height) * step_r,
                    shape[0], shape[1])
-
-
-def _at(field, rows, columns):
-    r = np.clip(np.round(rows).astype(int), 0, field.shape[0] - 1)
-    c = np.clip(np.round(columns).astype(int), 0, field.shape[1] - 1)
-    return field[r, c]
 
 
 def _records_from_fixes(fixes, stack, grid) -> FloeRecords:

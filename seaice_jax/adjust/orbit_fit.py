@@ -339,9 +339,10 @@ def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):
     return propagate_position_sigma(fit.model, covariance, pixel, scan)
 
 
-def propagate_position_sigma(model: ScanModel, covariance, pixel, scan):
-    """σ (north, east) in metres of image points from a ``(5, 5)`` covariance of the five unknowns (in the order
-    of :data:`FREE_PARAMETERS`), by the autodiff Jacobian of the forward model."""
+def position_jacobian(model: ScanModel, pixel, scan):
+    """∂(north, east)/∂(five unknowns) of image points, ``(n, 2, 5)`` metres per unit of each unknown (in the order
+    of :data:`FREE_PARAMETERS`), by forward-mode autodiff of the forward model; ``pixel, scan`` any shape,
+    flattened."""
     radius = model.orbit.radius
 
     def position(values, p, s):
@@ -353,7 +354,14 @@ def propagate_position_sigma(model: ScanModel, covariance, pixel, scan):
 
     values = jnp.stack([getattr(model, n) for n in FREE_PARAMETERS])
     pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
-    jac = jax.vmap(jax.jacfwd(position), in_axes=(None, 0, 0))(values, pixel.reshape(-1), scan.reshape(-1))
+    return jax.vmap(jax.jacfwd(position), in_axes=(None, 0, 0))(values, pixel.reshape(-1), scan.reshape(-1))
+
+
+def propagate_position_sigma(model: ScanModel, covariance, pixel, scan):
+    """σ (north, east) in metres of image points from a ``(5, 5)`` covariance of the five unknowns (in the order
+    of :data:`FREE_PARAMETERS`), by the autodiff Jacobian of the forward model (:func:`position_jacobian`)."""
+    pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
+    jac = position_jacobian(model, pixel, scan)
     variance = jnp.einsum("nij,jk,nik->ni", jac, jnp.asarray(covariance), jac)
     sigma = jnp.sqrt(variance)
     return sigma[:, 0].reshape(pixel.shape), sigma[:, 1].reshape(pixel.shape)

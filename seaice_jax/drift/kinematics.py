@@ -178,15 +178,9 @@ class Velocities:
         return np.hypot(self.u_grid, self.v_grid)
 
 
-def grid_to_east_north(projection, x, y, u, v):
-    """Rotate map-grid vector components ``(u, v)`` at map points ``(x, y)`` into geographic east and north
-    (the grid's convergence and any scale difference along the axes taken from the projection's Jacobian).
-
-    Returns:
-        ``(east, north)`` in the vector's units, measured on the ground (a grid metre is one ground metre at
-        the point only where the scale factor is 1; the ground vector keeps the map vector's length here, only
-        its direction is rotated).
-    """
+def east_north_axes(projection, x, y):
+    """Unit vectors ``(n, 2)`` of geographic east and north in map-grid components at map points ``(x, y)`` (from
+    the projection's Jacobian: the grid's convergence)."""
     lat, lon = (np.atleast_1d(np.asarray(a)) for a in projection.inverse(np.asarray(x, float),
                                                                           np.asarray(y, float)))
 
@@ -194,9 +188,22 @@ def grid_to_east_north(projection, x, y, u, v):
         return jnp.stack(projection.forward(point[0], point[1]))
 
     jac = np.asarray(jax.vmap(jax.jacfwd(forward))(jnp.stack([jnp.asarray(lat), jnp.asarray(lon)], -1)))
-    north_dir = jac[:, :, 0] / np.linalg.norm(jac[:, :, 0], axis=1, keepdims=True)
-    east_dir = jac[:, :, 1] / np.linalg.norm(jac[:, :, 1], axis=1, keepdims=True)
-    vectors = np.stack([np.broadcast_to(u, lat.shape), np.broadcast_to(v, lat.shape)], -1)
+    north = jac[:, :, 0] / np.linalg.norm(jac[:, :, 0], axis=1, keepdims=True)
+    east = jac[:, :, 1] / np.linalg.norm(jac[:, :, 1], axis=1, keepdims=True)
+    return east, north
+
+
+def grid_to_east_north(projection, x, y, u, v):
+    """Rotate map-grid vector components ``(u, v)`` at map points ``(x, y)`` into geographic east and north
+    (:func:`east_north_axes`).
+
+    Returns:
+        ``(east, north)`` in the vector's units, measured on the ground (a grid metre is one ground metre at
+        the point only where the scale factor is 1; the ground vector keeps the map vector's length here, only
+        its direction is rotated).
+    """
+    east_dir, north_dir = east_north_axes(projection, x, y)
+    vectors = np.stack([np.broadcast_to(u, east_dir.shape[:1]), np.broadcast_to(v, east_dir.shape[:1])], -1)
     return np.sum(vectors * east_dir, axis=1), np.sum(vectors * north_dir, axis=1)
 
 
