@@ -274,6 +274,8 @@ class SatelliteImage:
             (row = scan line − 1, column = pixel − 1). model: the true :class:`ScanModel`.
         control: measured control points (pointing noise in pixel and scan; known positions with their σ).
         clouds: the cloud patches drawn on it (``None``: clear).
+        frame: with a camera, the re-digitized frame ``(frame_rows, frame_columns)`` of the hardcopy (what
+            :func:`~seaice_jax.imagery.optical.correct_image` turns back into ``data``).
     """
 
     name: str
@@ -282,6 +284,7 @@ class SatelliteImage:
     model: ScanModel
     control: ControlPoints
     clouds: tuple | None = None
+    frame: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -317,7 +320,8 @@ def _render(scene, model, time, pixel, scan, clouds):
 
 def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interval_days: float = 1.0,
                       clouds: bool = False, control_points: int = 12, pointing_sigma=(0.3, 0.6),
-                      control_sigma: float = 500.0, scene: IceScene | None = None) -> ImageSequence:
+                      control_sigma: float = 500.0, scene: IceScene | None = None,
+                      camera: CameraDistortion | None = None) -> ImageSequence:
     """A sequence of NOAA-7-like images of a Lancaster-Sound-like scene, passes alternating south- and
     northbound with their own nodes, ``interval_days`` apart (plus a few hours of pass time).
 
@@ -328,6 +332,7 @@ def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interva
         pointing_sigma: ``(pixel, scan)`` σ of the operator's pointing, in pixels (the video camera's vertical
             resolution was half its horizontal: source 001 section 4).
         control_sigma: m, σ of the known positions (map accuracy); each point's σ adds its pointing σ.
+        camera: the re-digitizing camera (distortion, 4:3 frame): each image also gets its ``frame``.
     """
     rng = np.random.default_rng(seed)
     scene = scene or ice_scene(rng)
@@ -346,7 +351,8 @@ def simulate_sequence(seed: int = 0, n_images: int = 4, size: int = 128, interva
                      rng.uniform(30_000.0, 70_000.0, count))
         data = np.asarray(render(scene, model, time, cloud))
         control = _land_control(scene, model, rng, control_points, pointing_sigma, control_sigma)
-        images.append(SatelliteImage(f"IMG{k + 1:02d}", float(time), data, model, control, cloud))
+        frame = None if camera is None else np.asarray(render(scene, model, time, cloud, camera))
+        images.append(SatelliteImage(f"IMG{k + 1:02d}", float(time), data, model, control, cloud, frame))
     return ImageSequence(scene, tuple(images))
 
 
