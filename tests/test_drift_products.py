@@ -130,9 +130,10 @@ def test_records_missing_column_is_named(tmp_path):
 
 
 def test_geotiff_netcdf_geojson_are_read_back(tmp_path):
-    xr = pytest.importorskip("xarray")
-    tifffile = pytest.importorskip("tifffile")
-    pyproj = pytest.importorskip("pyproj")
+    import pyproj
+    import tifffile
+    import xarray as xr
+
     from seaice_jax.imagery.tracking import STATUS
     from seaice_jax.io.products import proj_string, write_drift_netcdf, write_geotiff, write_trajectories_geojson
 

@@ -6,7 +6,7 @@ low-resolution drift, OSI-405): displacements ``dX``, ``dY`` in metres along the
 (``standard_name`` ``sea_ice_x_displacement`` / ``sea_ice_y_displacement``), their standard errors linked by
 ``ancillary_variables``, start and end latitude/longitude, ``time_bnds``, a ``crs`` grid-mapping variable and a
 ``status_flag``; velocities both along the grid axes (``u_grid``, ``v_grid``) and toward geographic east and north
-(``u_east``, ``v_north``). Needs the ``io`` extra (xarray, netCDF4, tifffile).
+(``u_east``, ``v_north``). Written with xarray/netCDF4 and tifffile.
 """
 
 import os
