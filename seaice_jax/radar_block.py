@@ -73,7 +73,8 @@ def _sequential(project, n, lines):
 
 def _simultaneous(project, n, lines, options):
     result = simultaneous_block(project.coverages, project.plane, n,
-                                replace(options, static_points=project.surface == "land"))
+                                replace(options, static_points=project.surface == "land"),
+                                point_ids=project.point_ids)
     _, p_value, accepted = global_test(result.sigma0**2, result.degrees_of_freedom)
     lines += [f"  {result.solver} solve: {len(result.strips)} strips, navigation-error model "
               f"{options.navigation_model} per {options.navigation_scope}, {result.iterations} Gauss-Newton "

@@ -116,6 +116,9 @@ def corrupt(project, tmp_path, filename, edit):
      r"c1_measurements.csv, line \d+: unknown strip 'S99'"),
     ("c1_measurements.csv", lambda t: t + t.splitlines()[1] + "\n",
      r"c1_measurements.csv, line \d+: point P\d+ already measured on strip S\d+ \(line 2\)"),
+    ("c1_measurements.csv", lambda t: "\n".join(re.sub(r",[^,]*$", ",40.0", line) if line.startswith("P0001,")
+                                                else line for line in t.splitlines()) + "\n",
+     r"coverage 'day 0': control point P0001 is measured \(strip S0\d\) but has no ground solution"),
 ])
 def test_bad_projects_name_file_and_line_and_write_nothing(project, tmp_path, capsys, filename, edit, message):
     bad = corrupt(project, tmp_path, filename, edit)

@@ -54,7 +54,7 @@ from seaice_jax.adjust.lsq import Observations, make_solver
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, w_test
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_east
-from seaice_jax.geometry.range_doppler import _ground_point, look_sign
+from seaice_jax.geometry.range_doppler import ground_point, look_sign
 from seaice_jax.sensors.navigation import ERROR_MODELS, error_basis, error_basis_size
 from seaice_jax.sensors.slar import imaging_time
 from seaice_jax.sensors.strips import image_to_ground, nadir_altitudes, strip_navigation
@@ -190,7 +190,7 @@ def _rectified(strip_unknowns, row, data: _Data, shift):
     position = data.position[row] - error_n * data.north[row] - error_e * data.east[row] + shift[0] * velocity
     slant = (data.y[row] + shift[1] + data.sweep_delay[row] + strip_unknowns[2 * q]) * (data.range_scale[row]
                                                                                          + strip_unknowns[2 * q + 1])
-    ground = _ground_point(position, velocity, slant, data.radius, data.sign[row], 0.0, 0.0)
+    ground = ground_point(position, velocity, slant, data.radius, data.sign[row], on_failure="nan")
     return jnp.stack(data.plane.forward(*latitude_longitude(ground)))
 
 
@@ -518,7 +518,7 @@ def _strip_observations(strip, x, y, options, plane, radius, flight_span):
                 sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
 
 
-def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Problem:
+def _layout(coverages, n_points, plane, options: BlockOptions, radius, point_ids=None) -> _Problem:
     """Unknowns, observation tables and start values of a block."""
     names, prior = [], []
     strip_slices = []
@@ -622,7 +622,8 @@ def _layout(coverages, n_points, plane, options: BlockOptions, radius) -> _Probl
         raise SeaiceError("no image measurement gives a ground point: nothing to adjust")
     for c, p, strip_name in sorted(unsolved):
         if p in coverages[c].control and (-1 if options.static_points else c, p) not in point_unknown:
-            raise SeaiceError(f"coverage {coverages[c].name!r}: control point {p} is measured (strip {strip_name}) "
+            name = p if point_ids is None else point_ids[p]
+            raise SeaiceError(f"coverage {coverages[c].name!r}: control point {name} is measured (strip {strip_name}) "
                               "but has no ground solution with the nominal radar constants and the navigation (a "
                               "slant range shorter than the flying height?): nothing would hold it; correct or "
                               "remove its measurement")
@@ -746,7 +747,7 @@ def _check_datum(problem: _Problem, data: _Data, unknowns, points):
 
 
 def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | None = None,
-                       radius: float = MEAN_RADIUS) -> BlockResult:
+                       radius: float = MEAN_RADIUS, point_ids=None) -> BlockResult:
     """Adjust a radar block (one or several coverages) with every unknown in one solve.
 
     Args:
@@ -756,12 +757,13 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
         plane: the map projection (``forward(lat, lon) -> (x, y)``), e.g. the project's tangent plane.
         n_points: number of point ids (the size of the per-coverage position arrays).
         options: see :class:`BlockOptions`.
+        point_ids: the points' names (a project's ids) for messages; default their indices.
 
     Raises:
         RankDeficiencyError: a datum defect (e.g. no control and no navigation priors), naming the unknowns.
     """
     options = options or BlockOptions()
-    problem = _layout(coverages, n_points, plane, options, radius)
+    problem = _layout(coverages, n_points, plane, options, radius, point_ids)
     size = len(problem.names)
     n_real = len(problem.point_key)
     total = size + 2 * n_real

@@ -14,7 +14,7 @@ import numpy as np
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.range_doppler import _ground_point, look_sign
+from seaice_jax.geometry.range_doppler import ground_point, look_sign
 from seaice_jax.sensors.navigation import NavigationSpline, moving_average
 from seaice_jax.sensors.slar import imaging_time, slant_range
 
@@ -111,7 +111,7 @@ def image_to_ground(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
     eq. A1, slant range by eq. A2, the ground point by eq. A5 on the ``navigation`` trajectory; ``sign`` +1 right,
     −1 left looking. NaN where there is no ground point."""
     position, velocity = navigation(imaging_time(x, mark_x, mark_times))
-    return _ground_point(position, velocity, slant_range(y, sweep_delay, range_scale), radius, sign, 0.0, 0.0)
+    return ground_point(position, velocity, slant_range(y, sweep_delay, range_scale), radius, sign, on_failure="nan")
 
 
 def nadir_altitudes(strip: StripRecord):
