@@ -55,9 +55,9 @@ def render_frames(images, labels, land=None, points=None, scale: int = 2):
                     centre = (int(round((column + 0.5) * scale)), int(round((row + 0.5) * scale)))
                     cv2.circle(frame, centre, max(2, scale + 1), POINT_COLOUR, 1, cv2.LINE_AA)
         size = 0.35 + 0.1 * scale
-        cv2.putText(frame, labels[k], (6, int(16 + 6 * scale)), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), 3,
-                    cv2.LINE_AA)
-        cv2.putText(frame, labels[k], (6, int(16 + 6 * scale)), cv2.FONT_HERSHEY_SIMPLEX, size, (0, 0, 0), 1,
+        (width, height), baseline = cv2.getTextSize(labels[k], cv2.FONT_HERSHEY_SIMPLEX, size, 1)
+        cv2.rectangle(frame, (0, 0), (width + 10, height + baseline + 8), (0, 0, 0), -1)  # a banner under the date
+        cv2.putText(frame, labels[k], (5, height + 4), cv2.FONT_HERSHEY_SIMPLEX, size, (255, 255, 255), 1,
                     cv2.LINE_AA)
         frames.append(frame)
     return np.stack(frames)
