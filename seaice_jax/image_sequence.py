@@ -37,7 +37,13 @@ from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_poin
 from seaice_jax.io.files import atomic_path, write_csv
 from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
 from seaice_jax.io.sequence import make_grid, read_sequence
-from seaice_jax.plots import plot_box_averages, plot_remapped, plot_trajectories, plot_velocity_series
+from seaice_jax.plots import (
+    plot_box_averages,
+    plot_remapped,
+    plot_trajectories,
+    plot_vectors,
+    plot_velocity_series,
+)
 
 _MODEL_FIELDS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
                  "ascending_node")
@@ -134,6 +140,10 @@ def load_remapped(directory: str | os.PathLike) -> dict:
         raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
     with np.load(path) as data:
         stored = {k: data[k] for k in data.files}
+    missing = [k for k in ("values", "valid", "times", "names", "epoch", "grid", "sigma", "covariance",
+                           "parameters", "orbits", "directions", "shapes") if k not in stored]
+    if missing:
+        raise SeaiceError(f"{path}: no {', '.join(missing)} (written by another version?): run `seaice remap` again")
     spec = json.loads(str(stored["grid"]))
     grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
     models = [ScanModel(*p, Orbit(*o), str(d), int(s[1]), int(s[0])) for p, o, d, s in zip(
@@ -149,9 +159,9 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
     """Track the ice between consecutive remapped images.
 
     Writes per pair ``drift_<a>_<b>.nc`` (CF-NetCDF on the tracking lattice; the displacement σ combines
-    ``tracking_sigma`` pixels with both images' geolocation σ), and for the whole sequence ``floes.csv`` (floe
-    records: every lattice point of the first image followed through the sequence while its tracking stays good),
-    ``trajectories.geojson``."""
+    ``tracking_sigma`` pixels with both images' geolocation σ) and its figure ``drift_<a>_<b>.png`` (vectors with
+    95 % ellipses), and for the whole sequence ``floes.csv`` (floe records: every lattice point of the first image
+    followed through the sequence while its tracking stays good) and ``trajectories.geojson``."""
     options = options or TrackingOptions()
     stack = load_remapped(remapped_dir)
     values, valid, grid, times, names = (stack[k] for k in ("values", "valid", "grid", "times", "names"))
@@ -191,6 +201,14 @@ def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
         files.append(write_drift_netcdf(out / f"drift_{names[k]}_{names[k + 1]}.nc", lattice, fields, times[k],
                                         times[k + 1], stack["epoch"], STATUS,
                                         title=f"Sea-ice drift {names[k]} to {names[k + 1]}", deformation=rates))
+        positions = np.stack([map_vectors["x"], map_vectors["y"]], 1)[good]
+        files.append(plot_vectors(
+            out / f"drift_{names[k]}_{names[k + 1]}.png", positions, np.stack([map_vectors["dx"], map_vectors["dy"]],
+                                                                              1)[good],
+            f"Tracked drift {names[k]} -> {names[k + 1]} ({good.sum()} vectors)",
+            f"{interval / 86400:.2f} days; ellipses: 95 % from the stated σ (geolocation and tracking)",
+            background=np.stack([map_vectors["x"], map_vectors["y"]], 1)[~good],
+            covariances=np.stack([np.diag(v) for v in sigma[good] ** 2]) if good.any() else None))
         chained = track(values[k], values[k + 1], options, points=(floe_row, floe_column), valid_first=valid[k],
                         valid_second=valid[k + 1])
         alive &= chained.good

@@ -64,6 +64,7 @@ def test_track_writes_cf_drift_whose_vectors_follow_the_ice(workflow):
     error = np.hypot(dx[good] - truth[:, 0], dy[good] - truth[:, 1])
     # geolocation of two images rectified on land control (km), not the tracking, dominates; the stated σ says so
     assert np.sqrt(np.mean(error**2)) < 3.0 * np.sqrt(2) * np.median(sigma[good])
+    assert (root / "drift" / "drift_IMG02_IMG03.png").read_bytes()[:4] == b"\x89PNG"
     floes = np.genfromtxt(root / "drift" / "floes.csv", delimiter=",", names=True, dtype=None, encoding=None)
     assert set(floes["image"]) == {"IMG01", "IMG02", "IMG03"}
     collection = json.loads((root / "drift" / "trajectories.geojson").read_text())
@@ -130,3 +131,10 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, capsys, workflow):
     assert main(["movie", str(root / "remapped"), "--out", str(tmp_path / "film.avi")]) == 2
     assert "written as .gif or .mp4" in capsys.readouterr().err
     assert not (tmp_path / "film.avi").exists()
+    old = tmp_path / "old"
+    old.mkdir()
+    with np.load(root / "remapped" / "remapped.npz") as data:
+        np.savez(old / "remapped.npz", **{k: data[k] for k in data.files if k != "covariance"})
+    assert main(["track", str(old), "--out", str(tmp_path / "drift"), "--quiet"]) == 2
+    assert "remapped.npz: no covariance" in capsys.readouterr().err
+    assert not (tmp_path / "drift").exists()
