@@ -18,7 +18,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import publish  # noqa: E402
+from _common import best_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.geometry.projections import MapGrid, nsidc_polar_stereographic  # noqa: E402
@@ -141,15 +141,10 @@ def _opencv(images, maps):
                                                                                                strict=True)]
 
 
-def _best(function, *args, repeats=3):
-    """Best wall time over ``repeats`` calls after one warm-up call."""
+def _best(function, *args):
+    """Best wall time over 3 calls after one warm-up call."""
     jax.block_until_ready(function(*args))
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(function(*args))
-        best = min(best, time.perf_counter() - start)
-    return best
+    return best_time(function, *args, repeats=3)
 
 
 if __name__ == "__main__":
