@@ -7,7 +7,6 @@ Each step computes everything before it writes, and writes atomically; the CLI's
 import json
 import os
 from dataclasses import dataclass, replace
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ from seaice_jax.drift.kinematics import (
     grid_to_east_north,
     velocities,
 )
-from seaice_jax.drift.records import FloeRecords, format_time, parse_time, read_records, write_records
+from seaice_jax.drift.records import FloeRecords, read_records, time_after, write_records
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.geometry.scan import Orbit, ScanModel
@@ -36,7 +35,7 @@ from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, track
 from seaice_jax.io.files import atomic_path, write_csv
 from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
-from seaice_jax.io.sequence import make_grid, read_sequence
+from seaice_jax.io.sequence import make_grid, named_projection, read_sequence
 from seaice_jax.plots import (
     plot_box_averages,
     plot_remapped,
@@ -56,10 +55,6 @@ class Step:
     files: tuple[Path, ...]
     report: str
     results: dict
-
-
-def _label(epoch: str, seconds: float) -> str:
-    return format_time(datetime.fromtimestamp(parse_time(epoch).timestamp() + seconds, UTC))
 
 
 def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
@@ -107,7 +102,8 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
     times = np.array([im.time for im in project.images])
     files = []
     for k, name in enumerate(tqdm(names, desc="write GeoTIFF", disable=not progress, leave=False)):
-        files.append(write_geotiff(out / f"{name}.tif", values[k], grid, f"{name} {_label(project.epoch, times[k])}"))
+        label = f"{name} {time_after(project.epoch, times[k])}"
+        files.append(write_geotiff(out / f"{name}.tif", values[k], grid, label))
     parameters = np.array([[float(getattr(m, f)) for f in _MODEL_FIELDS] for m in models])
     with atomic_path(out / "remapped.npz") as temporary, open(temporary, "wb") as stream:
         np.savez_compressed(stream, values=values, valid=valid, times=times, names=np.array(names),
@@ -124,7 +120,7 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
                                                            for k, v in deviations.items()}))
     x, y = (np.asarray(a) / 1000 for a in grid.xy())
     extent = [x.min(), x.max(), y.min(), y.max()]
-    files.append(plot_remapped(out / "remapped.png", values, [f"{n}\n{_label(project.epoch, t)[:16]}"
+    files.append(plot_remapped(out / "remapped.png", values, [f"{n}\n{time_after(project.epoch, t)[:16]}"
                                                               for n, t in zip(names, times, strict=True)], extent))
     report = [f"remapped {len(names)} images into a {grid.n_rows} x {grid.n_columns} grid of "
               f"{float(grid.pixel_width):.0f} x {float(grid.pixel_height):.0f} m ({method}, fill {fill}):", *lines]
@@ -290,13 +286,12 @@ def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, 
         images: the known image ids (validation).
     """
     records = read_records(records_path, images=images)
-    metric = make_grid(projection, (np.degrees(records.latitude[0]), np.degrees(records.longitude[0])), (1, 1),
-                       (1, 1)).projection
+    metric = named_projection(projection, (np.degrees(records.latitude[0]), np.degrees(records.longitude[0])))
     x, y = (np.asarray(a) for a in metric.forward(records.latitude, records.longitude))
     v = velocities(records.floe, records.time, x, y, metric)
     out = Path(out_dir)
     files = [write_csv(out / "velocities.csv", {
-        "floe_id": v.floe, "time": np.array([_label(records.epoch, t) for t in v.time]), "interval_s": v.interval,
+        "floe_id": v.floe, "time": np.array([time_after(records.epoch, t) for t in v.time]), "interval_s": v.interval,
         "x_m": v.x, "y_m": v.y, "u_grid_m_s": v.u_grid, "v_grid_m_s": v.v_grid, "u_east_m_s": v.u_east,
         "v_north_m_s": v.v_north})]
     origin = (np.floor(v.x.min() / box_size) * box_size, np.floor(v.y.min() / box_size) * box_size)
@@ -320,8 +315,8 @@ def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, 
         rates = deformation(np.stack([v.x[at], v.y[at]], 1), np.stack([v.u_grid[at], v.v_grid[at]], 1), sigma)
         centre = np.stack([v.x[at], v.y[at]], 1)[rates.triangles].mean(axis=1)
         half = v.interval[at][0] / 2
-        rows["start"] += [_label(records.epoch, t - half)] * len(rates.area)
-        rows["end"] += [_label(records.epoch, t + half)] * len(rates.area)
+        rows["start"] += [time_after(records.epoch, t - half)] * len(rates.area)
+        rows["end"] += [time_after(records.epoch, t + half)] * len(rates.area)
         rows["x_m"].append(centre[:, 0]), rows["y_m"].append(centre[:, 1])
         for name in ("divergence", "shear", "vorticity"):
             rows[f"{name}_s"].append(getattr(rates, name))
@@ -358,7 +353,7 @@ def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land
             at = floes.image == name
             x, y = grid.projection.forward(floes.latitude[at], floes.longitude[at])
             points.append(np.stack([np.asarray(a) for a in grid.to_pixel(x, y)], 1))
-    labels = [_label(stack["epoch"], t)[:16].replace("T", " ") for t in stack["times"]]
+    labels = [time_after(stack["epoch"], t)[:16].replace("T", " ") for t in stack["times"]]
     frames = render_frames(stack["values"], labels, land, points, scale)
     path = write_movie(out_path, frames, fps)
     return Step((path,), f"film of {len(frames)} frames ({frames.shape[2]} x {frames.shape[1]} pixels) -> {path}",

@@ -58,6 +58,11 @@ def format_time(moment: datetime) -> str:
     return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
+def time_after(epoch: str, seconds: float) -> str:
+    """ISO 8601 UTC of ``seconds`` after ``epoch`` (ISO 8601)."""
+    return format_time(datetime.fromtimestamp(parse_time(epoch).timestamp() + float(seconds), UTC))
+
+
 def seconds_since(epoch: str, times) -> np.ndarray:
     """Seconds from ``epoch`` (ISO 8601) of datetimes."""
     origin = parse_time(epoch)
@@ -127,8 +132,7 @@ def read_records(path: str | os.PathLike, images=None, epoch: str | None = None)
 
 def write_records(path: str | os.PathLike, records: FloeRecords) -> Path:
     """Write floe records as CSV (atomically), in the format :func:`read_records` reads."""
-    origin = parse_time(records.epoch).timestamp()
-    times = [format_time(datetime.fromtimestamp(origin + t, UTC)) for t in records.time]
+    times = [time_after(records.epoch, t) for t in records.time]
     return write_csv(path, {"floe_id": records.floe, "time": np.array(times), "image": records.image,
                             "pixel": records.pixel, "scan": records.scan,
                             "latitude": np.degrees(records.latitude), "longitude": np.degrees(records.longitude)},

@@ -236,12 +236,9 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
 
 def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, longitude, epoch: str) -> Path:
     """One LineString feature per floe (RFC 7946: [longitude, latitude] degrees), with its ISO 8601 times."""
-    from datetime import UTC, datetime
-
-    from seaice_jax.drift.records import format_time, parse_time
+    from seaice_jax.drift.records import time_after
 
     floe, time = np.asarray(floe), np.asarray(time, float)
-    origin = parse_time(epoch).timestamp()
     features = []
     for f in dict.fromkeys(floe.tolist()):
         k = np.nonzero(floe == f)[0]
@@ -251,6 +248,5 @@ def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, lo
         geometry = ({"type": "LineString", "coordinates": coordinates} if len(k) > 1
                     else {"type": "Point", "coordinates": coordinates[0]})
         features.append({"type": "Feature", "geometry": geometry,
-                         "properties": {"floe_id": str(f), "times": [format_time(datetime.fromtimestamp(
-                             origin + time[i], UTC)) for i in k]}})
+                         "properties": {"floe_id": str(f), "times": [time_after(epoch, time[i]) for i in k]}})
     return write_geojson(path, features)

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.adjust.orbit_fit import ControlPoints
-from seaice_jax.drift.records import format_time, parse_time
+from seaice_jax.drift.records import format_time, parse_time, time_after
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
 from seaice_jax.geometry.scan import ScanModel, satellite_orbit
@@ -67,16 +67,20 @@ class SequenceProject:
     images: tuple[SequenceImage, ...]
 
 
-def make_grid(projection: str, centre_deg, pixel_m, shape) -> MapGrid:
-    """The :class:`MapGrid` of a project's ``[grid]`` table."""
+def named_projection(projection: str, centre_deg):
+    """The metric projection of one of :data:`PROJECTIONS` (the equi-rectangular one true at ``centre_deg``)."""
     if projection not in PROJECTIONS:
         raise SeaiceError(f"grid projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
-    lat, lon = np.radians(centre_deg[0]), np.radians(centre_deg[1])
     if projection == "equirectangular":
-        metric = Equirectangular(lat, lon)
-    else:
-        metric = nsidc_polar_stereographic(projection.split("-")[1])
-    return MapGrid.centred(metric, lat, lon, float(pixel_m[0]), float(pixel_m[1]), int(shape[0]), int(shape[1]))
+        return Equirectangular(np.radians(centre_deg[0]), np.radians(centre_deg[1]))
+    return nsidc_polar_stereographic(projection.split("-")[1])
+
+
+def make_grid(projection: str, centre_deg, pixel_m, shape) -> MapGrid:
+    """The :class:`MapGrid` of a project's ``[grid]`` table."""
+    metric = named_projection(projection, centre_deg)
+    return MapGrid.centred(metric, np.radians(centre_deg[0]), np.radians(centre_deg[1]), float(pixel_m[0]),
+                           float(pixel_m[1]), int(shape[0]), int(shape[1]))
 
 
 def read_image_file(path: Path) -> np.ndarray:
@@ -196,7 +200,7 @@ def write_sequence(sequence, out_dir: str | os.PathLike, grid_spec: dict, satell
             "id": np.array(c.ids), "pixel": np.asarray(c.pixel), "scan": np.asarray(c.scan),
             "latitude": np.degrees(np.asarray(c.latitude)), "longitude": np.degrees(np.asarray(c.longitude)),
             "sigma_m": np.asarray(c.sigma)}, float_format="%.10g")
-        moment = format_time(parse_time(sequence.epoch).fromtimestamp(epoch.timestamp() + image.time, epoch.tzinfo))
+        moment = time_after(sequence.epoch, image.time)
         lines += ["", "[[image]]", f'name = "{image.name}"', f'time = "{moment}"', f'file = "{image.name}.npy"',
                   f'satellite = "{satellite}"', f"altitude_m = {float(image.model.orbit.altitude)!r}",
                   f'direction = "{image.model.direction}"', f'control = "{image.name}_control.csv"']
