@@ -32,10 +32,10 @@ from scipy.linalg import block_diag  # noqa: E402
 from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model  # noqa: E402
 from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle  # noqa: E402
 from seaice_jax.geometry.projections import MapGrid  # noqa: E402
-from seaice_jax.image_sequence import displacement_sigma  # noqa: E402
 from seaice_jax.imagery.remap import remap  # noqa: E402
 from seaice_jax.imagery.tracking import track  # noqa: E402
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement  # noqa: E402
+from seaice_jax.workflows.image_sequence import displacement_sigma  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")
 POINTING = (0.5, 1.0)  # pixels: along the scan line (pixel), across (scan line)
@@ -84,9 +84,10 @@ def realization(seed, images):
             if label == "auto_fitted":
                 out["speed_true"].append(np.hypot(*truth.T) / interval / 1000)
                 out["speed_auto"].append(np.hypot(*measured.T) / interval / 1000)
-                stack = {"models": [f.model for f in fits], "grid": grid, "covariance": covariance}
-                chosen = {key: value[pack] for key, value in vectors.items()}
-                out["auto_sigma"].append(displacement_sigma(stack, k, chosen, 0.2 * 1200.0))
+                x, y, dx, dy = (vectors[key][pack] for key in ("x", "y", "dx", "dy"))
+                out["auto_sigma"].append(displacement_sigma([fits[k].model, fits[k + 1].model],
+                                                            covariance[5 * k:5 * k + 10, 5 * k:5 * k + 10], grid,
+                                                            x, y, dx, dy, 0.2 * 1200.0))
         # manual: a technician marks MANUAL_FLOES pack floes in both images (cursor noise), the ICE module maps
         # each mark through that image's fitted model
         candidates = np.stack([np.asarray(a) for a in grid.xy()], -1).reshape(-1, 2)

@@ -35,25 +35,25 @@ def aidjex_section(seeds, strips):
     for seed in seeds:
         scenario = aidjex_scenario(seed, plan=FlightPlan(strips=strips))
         positions = []
-        for coverage in scenario.coverages:
+        for coverage, truth in zip(scenario.coverages, scenario.truth, strict=True):
             result = sequential_block(coverage.strips, coverage.measurements, scenario.plane)
             before.append(result.tie_before)
             after.append(result.tie_after)
-            n = coverage.truth.shape[0]
+            n = len(scenario.kinds)
             estimated = result.point_positions(coverage.measurements, n, "internal")
-            station_error.append(along_across(estimated[:3] - coverage.truth[:3], scenario.plan.heading))
+            station_error.append(along_across(estimated[:3] - truth.positions[:3], scenario.plan.heading))
             positions.append(estimated)
         # drift of the ice features seen on both coverages, and its error after removing the general drift
         both = np.isfinite(positions[0]).all(1) & np.isfinite(positions[1]).all(1)
         both[:3] = False
         measured = positions[1][both] - positions[0][both]
-        truth = scenario.coverages[1].truth[both] - scenario.coverages[0].truth[both]
+        truth = scenario.truth[1].positions[both] - scenario.truth[0].positions[both]
         rigid_measured = fit_transform(positions[0][both], positions[1][both], "rigid", 100.0)
-        rigid_truth = fit_transform(scenario.coverages[0].truth[both], scenario.coverages[1].truth[both], "rigid")
+        rigid_truth = fit_transform(scenario.truth[0].positions[both], scenario.truth[1].positions[both], "rigid")
         relative.append(rms(rigid_measured.residuals - rigid_truth.residuals, axis=None))
         absolute.append(rms(measured - truth, axis=None))
         # relative motion of nearby features: error of the drift difference of pairs less than 10 km apart
-        where = scenario.coverages[0].truth[both]
+        where = scenario.truth[0].positions[both]
         i, j = np.nonzero(np.triu(np.hypot(*(where[:, None, :] - where[None, :, :]).transpose(2, 0, 1)) < 10_000, 1))
         nearby.append(rms((measured[i] - measured[j]) - (truth[i] - truth[j]), axis=None))
     b, a = np.concatenate(before), np.concatenate(after)
@@ -77,10 +77,10 @@ def aidjex_section(seeds, strips):
     ])
 
 
-def _sequential_with_filter(coverage, plane, filter_window, weighting):
+def _sequential_with_filter(coverage, plane, points, filter_window, weighting):
     result = sequential_block(coverage.strips, coverage.measurements, plane, filter_window=filter_window,
                               filter_weighting=weighting)
-    return result.point_positions(coverage.measurements, coverage.truth.shape[0])
+    return result.point_positions(coverage.measurements, points)
 
 
 def prudhoe_section(seeds):
@@ -91,11 +91,11 @@ def prudhoe_section(seeds):
         day_errors, drift_errors = [[], []], []
         for seed in seeds:
             scenario = prudhoe_scenario(seed)
-            estimated = [_sequential_with_filter(c, scenario.plane, window, weighting)
+            estimated = [_sequential_with_filter(c, scenario.plane, len(scenario.kinds), window, weighting)
                          for c in scenario.coverages]
-            for d, (coverage, position) in enumerate(zip(scenario.coverages, estimated, strict=True)):
+            for d, (truth, position) in enumerate(zip(scenario.truth, estimated, strict=True)):
                 ok = np.isfinite(position).all(axis=1)
-                fit = fit_transform(position[ok], coverage.truth[ok], "similarity", 50.0)  # "linear, conformal"
+                fit = fit_transform(position[ok], truth.positions[ok], "similarity", 50.0)  # "linear, conformal"
                 day_errors[d].append(fit.residuals)
             ok = np.isfinite(estimated[0]).all(axis=1) & np.isfinite(estimated[1]).all(axis=1)
             drift = fit_transform(estimated[0][ok], estimated[1][ok], "similarity", 50.0)
@@ -109,22 +109,22 @@ def prudhoe_section(seeds):
             scenario = prudhoe_scenario(seed)
             for d, coverage in enumerate(scenario.coverages):
                 free = sequential_block(coverage.strips, coverage.measurements, scenario.plane).point_positions(
-                    coverage.measurements, coverage.truth.shape[0])
+                    coverage.measurements, len(scenario.kinds))
                 measured = [i for i in range(20) if np.isfinite(free[i]).all()]  # imaged, with a ground solution
                 chosen = [measured[int(k)] for k in np.linspace(0, len(measured) - 1, count).round()] if count else []
                 control = {i: np.array(coverage.control[i][:2]) for i in chosen} or None
                 position = sequential_block(coverage.strips, coverage.measurements, scenario.plane,
                                             control=control).point_positions(coverage.measurements,
-                                                                             coverage.truth.shape[0])
-                check = np.arange(20, coverage.truth.shape[0])  # land points that are never control
-                day_errors[d].append(position[check] - coverage.truth[check])
+                                                                             len(scenario.kinds))
+                check = np.arange(20, len(scenario.kinds))  # land points that are never control
+                day_errors[d].append(position[check] - scenario.truth[d].positions[check])
         cells = [rms(np.concatenate(e)) / 1000 for e in day_errors]
         rows_table2.append(f"| {count} | " + " | ".join(f"{c[1]:.2f} | {c[0]:.2f}" for c in cells) + " |")
     apparent = []
     for seed in seeds:
         scenario = prudhoe_scenario(seed)
         positions = [sequential_block(c.strips, c.measurements, scenario.plane).point_positions(
-            c.measurements, c.truth.shape[0]) for c in scenario.coverages]
+            c.measurements, len(scenario.kinds)) for c in scenario.coverages]
         apparent.append(positions[1] - positions[0])
     apparent = rms(np.concatenate(apparent), axis=None) * np.sqrt(2)
     return "\n".join([

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 from seaice_jax.adjust.block import BlockOptions, simultaneous_block  # noqa: E402
 from seaice_jax.adjust.sequential import sequential_block  # noqa: E402
-from seaice_jax.sensors.strips import rectify  # noqa: E402
+from seaice_jax.sensors.strips import strip_ground_points  # noqa: E402
 from seaice_jax.simulate.aircraft import ErrorModel, aidjex_scenario, prudhoe_scenario  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")
@@ -43,7 +43,7 @@ def with_control(scenario, count):
     height's range can hold nothing)."""
     coverages = []
     for c in scenario.coverages:
-        rectified = rectify(c.strips, c.measurements, filter_window=None)
+        rectified = strip_ground_points(c.strips, c.measurements, filter_window=None)
         solvable = {int(p) for p in c.measurements.point[np.isfinite(rectified).all(axis=1)]}
         kept = [p for p in sorted(c.control) if p in solvable][:count]
         coverages.append(replace(c, control={p: c.control[p] for p in kept}))
@@ -92,7 +92,7 @@ def run_methods(scenario):
 
 def aidjex_metrics(scenario, outcome):
     """Per method: tie RMS (x, y), station errors, drift errors, relative drift errors, predicted σ."""
-    truth = [c.truth for c in scenario.coverages]
+    truth = [c.positions for c in scenario.truth]
     stations = np.nonzero(scenario.kinds == "station")[0]
     ice = np.nonzero(scenario.kinds == "ice")[0]
     true_drift = truth[1] - truth[0]
@@ -115,7 +115,7 @@ def aidjex_metrics(scenario, outcome):
 def land_metrics(scenario, outcome):
     """Per method: position error of the land points that are not control, on each day, and the apparent drift
     (day 2 minus day 1: zero on land)."""
-    truth = scenario.coverages[0].truth
+    truth = scenario.truth[0].positions
     check = ~np.isin(np.arange(len(truth)), [p for c in scenario.coverages for p in c.control])
     metrics = {}
     for method, (positions, ties, result) in outcome.items():

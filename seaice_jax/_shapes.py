@@ -1,6 +1,7 @@
 """Padding arrays to a few bucket sizes, so jitted functions compile once per bucket rather than once per size."""
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def bucket(n: int) -> int:
@@ -9,7 +10,7 @@ def bucket(n: int) -> int:
     return 1 << (n - 1).bit_length() if n <= 4096 else -(-n // 4096) * 4096
 
 
-def pad(array, size: int, fill=0):
+def pad(array, size: int, fill: ArrayLike = 0):
     """``array`` with rows of ``fill`` appended up to ``size`` rows."""
     array = np.asarray(array)
     filler = np.full((size - array.shape[0],) + array.shape[1:], fill, dtype=array.dtype)

@@ -8,7 +8,7 @@ from seaice_jax.errors import SeaiceError
 
 
 def _demo(args) -> int:
-    from seaice_jax.demo import run_demo
+    from seaice_jax.workflows.demo import run_demo
 
     print(run_demo(args.out).summary)
     return 0
@@ -18,11 +18,11 @@ def _rectify(args) -> int:
     import numpy as np
 
     from seaice_jax.adjust.orbit_fit import fit_scan_model
+    from seaice_jax.files import write_json
     from seaice_jax.geometry.earth import SIDEREAL_DAY
     from seaice_jax.geometry.scan import satellite_orbit
-    from seaice_jax.io.files import write_json
     from seaice_jax.io.stations import control_points, read_agrid, read_measurements
-    from seaice_jax.reports import orbit_fit_json, orbit_fit_report
+    from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
 
     catalogue = read_agrid(args.stations) if args.stations else None
     measurements = read_measurements(args.measurements, catalogue)
@@ -51,7 +51,7 @@ def _simulate(args) -> int:
     from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
 
     if args.scenario == "lancaster":
-        from seaice_jax.image_sequence import write_simulated_sequence
+        from seaice_jax.workflows.image_sequence import write_simulated_sequence
 
         path = write_simulated_sequence(args.out, args.seed, args.images, args.size, args.clouds)
         print(f"wrote {path} (images, control points, land_mask.npy)")
@@ -66,7 +66,7 @@ def _simulate(args) -> int:
 
 def _block(args) -> int:
     from seaice_jax.adjust.block import BlockOptions
-    from seaice_jax.radar_block import run_block
+    from seaice_jax.workflows.radar_block import run_block
 
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
                            knot_spacing=args.knot_spacing, radar_constants=args.radar_constants,
@@ -78,7 +78,7 @@ def _block(args) -> int:
 
 
 def _remap(args) -> int:
-    from seaice_jax.image_sequence import run_remap
+    from seaice_jax.workflows.image_sequence import run_remap
 
     step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=not args.quiet)
     print(step.report)
@@ -87,8 +87,8 @@ def _remap(args) -> int:
 
 
 def _track(args) -> int:
-    from seaice_jax.image_sequence import run_track
     from seaice_jax.imagery.tracking import TrackingOptions
+    from seaice_jax.workflows.image_sequence import run_track
 
     options = TrackingOptions(patch=args.patch, search=args.search, spacing=args.spacing,
                               min_correlation=args.min_correlation, first_guess=args.first_guess)
@@ -99,7 +99,7 @@ def _track(args) -> int:
 
 
 def _velocities(args) -> int:
-    from seaice_jax.image_sequence import run_velocities
+    from seaice_jax.workflows.image_sequence import run_velocities
 
     step = run_velocities(args.records, args.out, projection=args.projection, box_size=args.box_km * 1000.0,
                           velocity_sigma=args.velocity_sigma)
@@ -109,7 +109,7 @@ def _velocities(args) -> int:
 
 
 def _movie(args) -> int:
-    from seaice_jax.image_sequence import run_movie
+    from seaice_jax.workflows.image_sequence import run_movie
 
     step = run_movie(args.remapped, args.out, land_mask=args.land_mask, records=args.records, fps=args.fps,
                      scale=args.scale)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from seaice_jax.cli import main
-from seaice_jax.demo import run_demo
-from seaice_jax.io.files import atomic_path, write_csv
+from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.workflows.demo import run_demo
 
 
 def read_csv(path):

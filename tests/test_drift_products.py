@@ -135,7 +135,7 @@ def test_geotiff_netcdf_geojson_are_read_back(tmp_path):
     import xarray as xr
 
     from seaice_jax.imagery.tracking import STATUS
-    from seaice_jax.io.products import proj_string, write_drift_netcdf, write_geotiff, write_trajectories_geojson
+    from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
 
     projection = nsidc_polar_stereographic("north")
     grid = MapGrid.centred(projection, np.radians(74.0), np.radians(-85.0), 5000.0, 5000.0, 6, 8)
@@ -162,7 +162,7 @@ def test_geotiff_netcdf_geojson_are_read_back(tmp_path):
                                               always_xy=True)
     np.testing.assert_allclose(transformer.transform(-80.0, 75.0), [float(v) for v in eqc.forward(
         np.radians(75.0), np.radians(-80.0))], atol=1e-6)
-    assert proj_string(projection).startswith("+proj=stere +lat_0=90")
+    assert projection.proj_string().startswith("+proj=stere +lat_0=90")
 
     fields = {"dX": np.full(grid.shape, 1500.0), "dY": np.full(grid.shape, -700.0),
               "dX_uncertainty": np.full(grid.shape, 200.0), "dY_uncertainty": np.full(grid.shape, 250.0),

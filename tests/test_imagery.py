@@ -7,7 +7,7 @@ import pytest
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import ImageGrid, MapGrid
-from seaice_jax.imagery.remap import fill_holes, remap, swath_masks
+from seaice_jax.imagery.remap import fill_holes, remap, remap_exact, scan_maps, swath_masks
 from seaice_jax.imagery.tracking import GOOD, LOW_CONTRAST, TrackingOptions, track
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
 
@@ -102,6 +102,81 @@ def test_fill_closes_holes_of_missing_data_with_the_mean_of_neighbours(sequence)
     assert float(fill_holes(block, mask)[1, 1]) == pytest.approx((36.0 - 4.0) / 8.0)
 
 
+def edge_grid(sequence, rows=60, columns=70):
+    """A grid over the scene's centre and off it, so that swath edges cross it."""
+    lat, lon = sequence.scene.projection.inverse(*sequence.scene.centre)
+    return MapGrid.centred(sequence.scene.projection, lat + 0.03, lon + 0.25, 6000.0, 6000.0, rows, columns)
+
+
+def test_scan_maps_within_the_threshold_of_the_exact_inverse_for_both_pass_directions(sequence):
+    grid = edge_grid(sequence)
+    models = [im.model for im in sequence.images]
+    assert {m.direction for m in models} == {"south", "north"}
+    latitude, longitude = grid.latitude_longitude()
+    exact_points = []
+    for max_error in (0.05, 0.002):
+        maps = scan_maps(models, grid, max_error)
+        assert maps.ok.all()
+        for k, model in enumerate(models):
+            pixel, scan = (np.asarray(a) for a in model.inverse(latitude, longitude))
+            error = np.hypot(maps.row[k] - (scan - 1.0), maps.column[k] - (pixel - 1.0))
+            assert error.max() <= max_error
+        exact_points.append(maps.exact_points)
+    assert exact_points[1] > 2 * exact_points[0]  # the tight threshold refined tiles
+    assert exact_points[1] < 0.5 * len(models) * grid.n_rows * grid.n_columns
+    exact = scan_maps(models, grid, 0.0)
+    pixel, scan = (np.asarray(a) for a in models[1].inverse(latitude, longitude))
+    np.testing.assert_allclose(exact.row[1], scan - 1.0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(exact.column[1], pixel - 1.0, rtol=0, atol=1e-9)
+
+
+def test_batches_of_many_images_equal_one_by_one(sequence):
+    """More images than one batch of maps (8), both pass directions mixed: each image keeps its own model."""
+    import equinox as eqx
+
+    grid = edge_grid(sequence, 24, 28)
+    models, images = [], []
+    for k in range(20):
+        image = sequence.images[k % 3]
+        models.append(eqx.tree_at(lambda m: m.ascending_node, image.model,
+                                  replace=image.model.ascending_node + 0.002 * k))
+        images.append(image.data)
+    batch, valid = remap(images, models, grid)
+    assert max(sum(m.direction == d for m in models) for d in ("south", "north")) > 8
+    for k in range(0, 20, 3):
+        single, single_valid = remap([images[k]], [models[k]], grid)
+        np.testing.assert_array_equal(single[0], batch[k])
+        np.testing.assert_array_equal(single_valid[0], valid[k])
+
+
+@pytest.mark.parametrize("method", ["bilinear", "nearest"])
+def test_fast_remap_has_the_exact_paths_masks_and_close_values(sequence, method):
+    grid = edge_grid(sequence)
+    images, models = [im.data.copy() for im in sequence.images], [im.model for im in sequence.images]
+    images[0][np.random.default_rng(0).random(images[0].shape) < 0.05] = np.nan  # digitizer dropouts
+    images[1][40:60, 30:90] = np.nan  # a lost block of scan lines
+    exact, exact_valid = remap_exact(images, models, grid, method)
+    assert 0.2 < exact_valid.mean() < 0.9  # swath edges and missing data cross the grid
+    # neighbouring pixels differ by at most `step`
+    step = max(np.nanmax(np.abs(np.diff(image, axis=a))) for image in images for a in (0, 1))
+    for max_error in (0.05, 0.3):
+        fast, valid = remap(images, models, grid, method, max_error_pixels=max_error)
+        np.testing.assert_array_equal(valid, exact_valid)
+        assert np.isnan(fast[~valid]).all() and np.isfinite(fast[valid]).all()
+        difference = np.abs(fast - exact)[valid]
+        if method == "bilinear":  # positions off by the map's error + 1/64 (cv2's 1/32-pixel weights)
+            assert difference.max() <= (max_error + 1 / 64) * np.sqrt(2) * step
+            assert np.sqrt(np.mean(difference**2)) < 0.01 * step
+        else:  # the nearest pixel changes only for positions within the map's error of a half pixel
+            assert np.mean(difference > 0) < 2 * 2 * max_error
+    # threshold 0 is the exact path
+    zero, zero_valid = remap(images, models, grid, method, max_error_pixels=0.0)
+    np.testing.assert_array_equal(zero, exact)
+    np.testing.assert_array_equal(zero_valid, exact_valid)
+    with pytest.raises(SeaiceError, match="max_error_pixels must be >= 0"):
+        remap(images, models, grid, max_error_pixels=-1.0)
+
+
 def test_equirectangular_image_grid_of_source_001():
     grid = ImageGrid(np.radians(74.0), np.radians(-87.0), 50.5, 40.5, 1000.0, 1200.0)
     raster = MapGrid.from_image_grid(grid, 80, 100)
@@ -171,15 +246,15 @@ def test_radar_strip_orthorectified_through_the_range_doppler_inverse_reproduces
     from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, render_strip, simulate_flight
     from seaice_jax.simulate.satellite import ice_scene
 
-    (strip,) = simulate_flight(FlightPlan(strips=1, strip_duration=120.0), ErrorModel.none(),
-                               np.random.default_rng(0))
+    (strip,), (truth_of_strip,) = simulate_flight(FlightPlan(strips=1, strip_duration=120.0), ErrorModel.none(),
+                                                  np.random.default_rng(0))
     middle = jnp.asarray(strip.record_positions[len(strip.record_positions) // 2])
     lat, lon = (float(a) for a in latitude_longitude(middle))
     scene = ice_scene(np.random.default_rng(1), np.degrees(lat) - 3, np.degrees(lon), feature_size=2000.0)
-    raster = render_strip(scene, strip, pixel_size=0.2)  # 50 m of slant range per pixel
+    raster = render_strip(scene, strip, truth_of_strip, pixel_size=0.2)  # 50 m of slant range per pixel
     grid = MapGrid.centred(scene.projection, lat, lon, 400.0, 400.0, 80, 80)
     navigation = strip_navigation(strip, None)
-    arguments = (strip.mark_x, strip.mark_times, strip.true_sweep_delay, strip.true_range_scale)
+    arguments = (strip.mark_x, strip.mark_times, truth_of_strip.sweep_delay, truth_of_strip.range_scale)
     values, valid = orthorectify_strip(raster, navigation, *arguments, strip.look_side, grid)
     x, y = grid.xy()
     truth = np.asarray(scene.brightness(jnp.stack([x, y], -1), 0.0))
@@ -188,10 +263,17 @@ def test_radar_strip_orthorectified_through_the_range_doppler_inverse_reproduces
     shift, _ = cv2.phaseCorrelate(np.where(valid, truth, 0).astype(np.float32),
                                   np.where(valid, values, 0).astype(np.float32))
     assert np.hypot(*shift) < 0.1
+    # the default approximate transformer + cv2.remap has the exact path's mask and values within its threshold
+    exact, exact_valid = orthorectify_strip(raster, navigation, *arguments, strip.look_side, grid, max_error_pixels=0.0)
+    np.testing.assert_array_equal(valid, exact_valid)
+    data = np.asarray(raster.data)
+    step = max(np.nanmax(np.abs(np.diff(data, axis=a))) for a in (0, 1))
+    assert np.abs(values - exact)[valid].max() <= (0.05 + 1 / 64) * np.sqrt(2) * step
     # the wrong look side sees nothing of it where the true side does, and a wrong sweep delay misplaces it
     _, left = orthorectify_strip(raster, navigation, *arguments, "left", grid)
     assert not (left & valid).any()
     shifted, moved = orthorectify_strip(raster, navigation, strip.mark_x, strip.mark_times,
-                                        strip.true_sweep_delay + 2.0, strip.true_range_scale, strip.look_side, grid)
+                                        truth_of_strip.sweep_delay + 2.0, truth_of_strip.range_scale, strip.look_side,
+                                        grid)
     both = moved & valid
     assert np.sqrt(np.mean((shifted[both] - truth[both]) ** 2)) > 0.05

@@ -67,3 +67,22 @@ def test_drift_vectors_and_errors():
     with pytest.raises(RankDeficiencyError):
         line = np.stack([np.linspace(0, 1000, 5), np.linspace(0, 2000, 5)], 1)
         fit_transform(line, line + 10.0, "affine")
+
+
+def test_error_ellipses_hold_their_confidence_in_monte_carlo(rng):
+    """95 % ellipses from 2 x 2 covariances: the fraction of Gaussian samples inside each is 0.95, the axes are the
+    scaled square roots of the eigenvalues, and a covariance with NaN gives NaN axes."""
+    from seaice_jax.drift.kinematics import error_ellipses
+
+    covariances = np.array([[[4.0, 1.5], [1.5, 1.0]], [[1.0, 0.0], [0.0, 9.0]], [[np.nan, 0.0], [0.0, 1.0]]])
+    major, minor, angle = error_ellipses(covariances, 0.95)
+    assert np.isnan(major[2]) and np.isnan(minor[2])
+    scale = np.sqrt(5.991464547107979)  # χ²(2) at 0.95
+    for k in range(2):
+        values = np.linalg.eigvalsh(covariances[k])
+        np.testing.assert_allclose([major[k], minor[k]], np.sqrt(values[::-1]) * scale, rtol=1e-12)
+        samples = rng.multivariate_normal([0.0, 0.0], covariances[k], 20_000)
+        c, s = np.cos(angle[k]), np.sin(angle[k])
+        along, across = samples @ np.array([c, s]), samples @ np.array([-s, c])
+        inside = (along / major[k]) ** 2 + (across / minor[k]) ** 2 <= 1.0
+        assert inside.mean() == pytest.approx(0.95, abs=0.006)  # 4σ of a binomial of 20 000

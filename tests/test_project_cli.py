@@ -8,7 +8,7 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.io.project import read_project, write_project
-from seaice_jax.sensors.strips import rectify
+from seaice_jax.sensors.strips import strip_ground_points
 from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 
 
@@ -86,8 +86,8 @@ def test_comparator_coordinates_and_kinds_round_trip(tmp_path):
     for read, simulated in zip(coverage.strips, original.strips, strict=True):
         np.testing.assert_allclose(read.nadir_y, simulated.nadir_y, atol=1e-9)
         np.testing.assert_allclose(np.diff(read.mark_x), np.diff(simulated.mark_x), atol=1e-9)
-    ours = rectify(coverage.strips, coverage.measurements)
-    theirs = rectify(original.strips, original.measurements)
+    ours = strip_ground_points(coverage.strips, coverage.measurements)
+    theirs = strip_ground_points(original.strips, original.measurements)
     assert np.nanmax(np.linalg.norm(ours - theirs, axis=1)) < 1e-3
     kinds = dict(zip(loaded.point_ids, loaded.point_kinds, strict=True))
     assert [kinds[f"P{i:04d}"] for i in (1, 2, 3)] == ["control"] * 3

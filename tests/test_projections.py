@@ -130,3 +130,40 @@ def test_jit_vmap_grad():
     e2 = projection.flattening * (2 - projection.flattening)
     meridional = projection.semi_major_axis * (1 - e2) / (1 - e2 * np.sin(70 * DEG) ** 2) ** 1.5
     assert abs(float(dy)) == pytest.approx(float(meridional), rel=1e-12)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_proj_string_and_crs_wkt_describe_the_same_projection(name, rng):
+    """The PROJ definition and the WKT of the CF grid mapping, each read by pyproj, map points where our forward
+    does (to a millimetre); the NSIDC grids carry their EPSG codes."""
+    projection, _, lat_range, lon_range = CASES[name]
+    lat, lon = sample(lat_range, lon_range, rng, 50)
+    x, y = (np.asarray(a) for a in projection.forward(lat * DEG, lon * DEG))
+    mapping = projection.cf_grid_mapping()
+    geographic = pyproj.CRS.from_proj4(projection.proj_string()).geodetic_crs
+    for definition in (projection.proj_string(), mapping["crs_wkt"]):
+        crs = pyproj.CRS.from_user_input(definition)
+        px, py = pyproj.Transformer.from_crs(crs.geodetic_crs or geographic, crs, always_xy=True).transform(lon, lat)
+        np.testing.assert_allclose(px, x, atol=1e-3, rtol=0)
+        np.testing.assert_allclose(py, y, atol=1e-3, rtol=0)
+    assert mapping["proj4_params"] == projection.proj_string()
+    expected_code = {"nsidc_north_epsg3413": "EPSG:3413", "nsidc_south_epsg3976": "EPSG:3976"}.get(name)
+    assert mapping.get("epsg_code") == expected_code
+    if expected_code is not None:
+        assert pyproj.CRS.from_wkt(mapping["crs_wkt"]).to_epsg() == int(expected_code[5:])
+        assert mapping["grid_mapping_name"] == "polar_stereographic"
+
+
+def test_every_projection_is_a_projection_and_the_base_is_abstract():
+    import inspect
+
+    from seaice_jax.geometry import projections
+
+    family = [c for _, c in inspect.getmembers(projections, inspect.isclass)
+              if c.__module__ == projections.__name__ and hasattr(c, "forward") and hasattr(c, "inverse")
+              and c not in (projections.Projection, projections.ImageGrid)]
+    assert {c.__name__ for c in family} == {"TangentPlane", "Equirectangular", "LambertConformalConic",
+                                            "PolarStereographic"}
+    assert all(issubclass(c, projections.Projection) for c in family)
+    with pytest.raises(TypeError):
+        projections.Projection()

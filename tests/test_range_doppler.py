@@ -230,3 +230,17 @@ def test_on_failure_nan_marks_impossible_points_without_raising():
     assert np.isfinite(p[0]).all() and np.isnan(p[1]).all()
     with pytest.raises(ValueError, match="on_failure"):
         ground_point(s, v, 20_000.0, on_failure="ignore")
+
+
+def test_trajectories_share_the_abstract_interface():
+    """Analytic and navigated trajectories are both :class:`Trajectory` s, and the interface itself is abstract."""
+    from seaice_jax import Trajectory
+
+    track = CircularTrajectory.from_heading(1.3, -2.6, 1.4, 10_000.0, 170.0)
+    times = np.arange(0.0, 101.0, 10.0)
+    position, velocity = (np.asarray(a) for a in track(times))
+    spline = NavigationSpline(times, position, velocity)
+    assert isinstance(track, Trajectory) and isinstance(spline, Trajectory)
+    np.testing.assert_allclose(np.asarray(spline(55.0)[0]), np.asarray(track(55.0)[0]), atol=1.0)
+    with pytest.raises(TypeError):
+        Trajectory()

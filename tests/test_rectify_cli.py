@@ -6,7 +6,7 @@ import pytest
 
 from seaice_jax.adjust.orbit_fit import fit_scan_model
 from seaice_jax.cli import main
-from seaice_jax.reports import orbit_fit_json, orbit_fit_report
+from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -7,9 +7,9 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
-from seaice_jax.image_sequence import SIMULATED_GRID, load_remapped, write_simulated_sequence
 from seaice_jax.io.sequence import read_sequence
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
+from seaice_jax.workflows.image_sequence import SIMULATED_GRID, load_remapped, write_simulated_sequence
 
 
 @pytest.fixture(scope="module")
@@ -31,16 +31,16 @@ def test_remap_writes_georeferenced_images_and_rectification(workflow):
 
     root, sequence = workflow
     stack = load_remapped(root / "remapped")
-    assert stack["values"].shape == (3, *SIMULATED_GRID["shape"]) and stack["names"] == ["IMG01", "IMG02", "IMG03"]
+    assert stack.values.shape == (3, *SIMULATED_GRID["shape"]) and stack.names == ("IMG01", "IMG02", "IMG03")
     with tifffile.TiffFile(root / "remapped" / "IMG02.tif") as tif:
         assert tif.geotiff_metadata["ProjectedCSTypeGeoKey"] == 3413
-        np.testing.assert_array_equal(tif.pages[0].asarray(), stack["values"][1].astype(np.float32))
+        np.testing.assert_array_equal(tif.pages[0].asarray(), stack.values[1].astype(np.float32))
     # the fitted models put the control points within a few km, and the geolocation σ is of that order
     deviations = np.genfromtxt(root / "remapped" / "rectification.csv", delimiter=",", names=True, dtype=None,
                                encoding=None)
     distance = np.hypot(deviations["north_km"], deviations["east_km"])
     assert distance.mean() < 4.0
-    assert 200.0 < np.nanmedian(stack["sigma"]) < 3000.0
+    assert 200.0 < np.nanmedian(stack.sigma) < 3000.0
     assert (root / "remapped" / "remapped.png").exists()
 
 

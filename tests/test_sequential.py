@@ -52,7 +52,7 @@ def simulated_block(errors, strips=3, seed=0, count=600):
 
     scenario = aidjex_scenario(seed, plan=FlightPlan(strips=strips), errors=errors, features=count)
     coverage = scenario.coverages[0]
-    return coverage.strips, coverage.measurements, scenario.plane, coverage.truth
+    return coverage.strips, coverage.measurements, scenario.plane, scenario.truth[0].positions
 
 
 def test_sequential_block_is_exact_without_errors():

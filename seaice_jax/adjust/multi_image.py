@@ -16,7 +16,6 @@ import numpy as np
 from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares, make_solver
 from seaice_jax.adjust.orbit_fit import (
     FREE_PARAMETERS,
-    ControlPoints,
     fit_scan_model,
     free_mask,
     orbit_solver,
@@ -24,32 +23,8 @@ from seaice_jax.adjust.orbit_fit import (
 )
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import wrap_angle as _wrap
-from seaice_jax.geometry.scan import Orbit, ScanModel
-
-
-@dataclass(frozen=True)
-class ImageObservations:
-    """What was measured on one image.
-
-    Attributes:
-        name: the image's name (used in messages and parameter names).
-        orbit, direction, n_pixels, n_scans: the image's fixed orbit, pass direction and size.
-        primary: control points with known positions (may be ``None``).
-        secondary_ids: ids of the secondary points measured on this image.
-        secondary_pixel, secondary_scan: ``(k,)`` their image coordinates.
-        secondary_sigma: metres, ground σ of pointing a secondary point on this image.
-    """
-
-    name: str
-    orbit: Orbit
-    direction: str
-    primary: ControlPoints | None
-    secondary_ids: tuple[str, ...]
-    secondary_pixel: np.ndarray
-    secondary_scan: np.ndarray
-    secondary_sigma: float = 1000.0
-    n_pixels: int = 512
-    n_scans: int = 512
+from seaice_jax.geometry.scan import ScanModel
+from seaice_jax.sensors.control import ControlPoints, ImageObservations
 
 
 @dataclass(frozen=True)

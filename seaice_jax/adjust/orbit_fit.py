@@ -19,7 +19,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from seaice_jax.adjust.appendix_c import appendix_c_search
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
@@ -27,69 +26,14 @@ from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.earth import wrap_angle as _wrap
-from seaice_jax.geometry.scan import Orbit, ScanModel, orbit_coordinates
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, orbit_coordinates
+from seaice_jax.sensors.control import ControlPoints
 
-FREE_PARAMETERS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
-                   "ascending_node")
+FREE_PARAMETERS = SCAN_UNKNOWNS
 """The five per-image unknowns, in the order the engine reports them."""
 
 FLAG_ARCMIN = 3.0
 """Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
-
-
-class ControlPoints(eqx.Module):
-    """Ground control points of one image: image position, known position, and its ground σ.
-
-    Attributes:
-        pixel, scan: ``(n,)`` fractional 1-based image coordinates.
-        latitude, longitude: ``(n,)`` radians (on the model sphere).
-        sigma: ``(n,)`` metres, standard deviation of each horizontal coordinate at the ground (map accuracy
-            and image pointing combined).
-        ids: point identifiers (station numbers or names).
-    """
-
-    pixel: Float[Array, " n"]
-    scan: Float[Array, " n"]
-    latitude: Float[Array, " n"]
-    longitude: Float[Array, " n"]
-    sigma: Float[Array, " n"]
-    ids: tuple[str, ...] = eqx.field(static=True)
-
-    def __init__(self, pixel, scan, latitude, longitude, sigma=1000.0, ids=None):
-        arrays = [np.atleast_1d(np.asarray(a, float)) for a in (pixel, scan, latitude, longitude)]
-        n = arrays[0].size
-        ids = tuple(str(i) for i in (range(1, n + 1) if ids is None else ids))
-        if any(a.shape != (n,) for a in arrays) or len(ids) != n:
-            raise SeaiceError(f"control points: pixel, scan, latitude, longitude and ids must all have {n} entries")
-        seen = set()
-        for point_id in ids:
-            if point_id in seen:
-                raise SeaiceError(f"control point {point_id}: duplicate id")
-            seen.add(point_id)
-        for name, values in zip(("pixel", "scan", "latitude", "longitude"), arrays, strict=True):
-            bad = np.nonzero(~np.isfinite(values))[0]
-            if bad.size:
-                raise SeaiceError(f"control point {ids[bad[0]]}: {name} is not a finite number")
-        bad = np.nonzero(np.abs(arrays[2]) > np.pi / 2)[0]
-        if bad.size:
-            raise SeaiceError(f"control point {ids[bad[0]]}: latitude {np.degrees(arrays[2][bad[0]]):.4f}° is "
-                              "outside [-90°, 90°]")
-        sigma = np.broadcast_to(np.asarray(sigma, float), (n,))
-        bad = np.nonzero(~(sigma > 0))[0]
-        if bad.size:
-            raise SeaiceError(f"control point {ids[bad[0]]}: sigma must be > 0 metres")
-        self.pixel, self.scan, self.latitude, self.longitude = (jnp.asarray(a) for a in arrays)
-        self.sigma = jnp.asarray(sigma)
-        self.ids = ids
-
-    @classmethod
-    def from_degrees(cls, pixel, scan, latitude_deg, longitude_deg, sigma_km=1.0, ids=None):
-        """Control points with latitude/longitude in degrees and σ in kilometres."""
-        return cls(pixel, scan, np.radians(latitude_deg), np.radians(longitude_deg),
-                   np.asarray(sigma_km, float) * 1000.0, ids)
-
-    def __len__(self):
-        return len(self.ids)
 
 
 def free_mask(model: ScanModel):

@@ -23,7 +23,7 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import latitude_longitude
 from seaice_jax.sensors.slar import NadirCalibration, nadir_calibration
-from seaice_jax.sensors.strips import Measurements, nadir_altitudes, rectify
+from seaice_jax.sensors.strips import Measurements, nadir_altitudes, strip_ground_points
 
 
 def piece_coefficients(value_start, slope_start, value_end, slope_end, length):
@@ -201,7 +201,7 @@ def sequential_block(strips, measurements: Measurements, plane, control=None, pi
                                                   strip.range_scale))
     sweep = [c.sweep_delay for c in calibrations] if calibrate else None
     scale = [c.range_scale for c in calibrations] if calibrate else None
-    points = rectify(strips, measurements, filter_window, sweep_delay=sweep, range_scale=scale,
+    points = strip_ground_points(strips, measurements, filter_window, sweep_delay=sweep, range_scale=scale,
                      filter_weighting=filter_weighting)
     lat, lon = latitude_longitude(points)
     rectified = np.stack([np.asarray(a) for a in plane.forward(lat, lon)], axis=1)

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
-from matplotlib.tri import Triangulation
 
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
@@ -365,7 +364,11 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
         raise SeaiceError(f"points and velocities must both be (n, 2), got {points.shape} and {velocity.shape}")
     if points.shape[0] < 3:
         raise SeaiceError(f"deformation needs at least 3 points, got {points.shape[0]}")
-    triangles = np.asarray(Triangulation(points[:, 0], points[:, 1]).triangles if triangles is None else triangles)
+    if triangles is None:
+        from matplotlib.tri import Triangulation  # Delaunay; imported here so that the package loads without it
+
+        triangles = Triangulation(points[:, 0], points[:, 1]).triangles
+    triangles = np.asarray(triangles)
     sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
     rates, gradient, area, jacobian = _triangle_rates(jnp.asarray(points[triangles]),
@@ -374,3 +377,15 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     rates, std = np.asarray(rates), np.sqrt(variance)
     return Deformation(triangles, np.abs(np.asarray(area)), np.asarray(gradient), rates[:, 0], rates[:, 1],
                        rates[:, 2], std[:, 0], std[:, 1], std[:, 2])
+
+
+def error_ellipses(covariances, confidence: float = 0.95):
+    """Semi-axes ``(n,)``, ``(n,)`` (same units as √covariance) and orientation ``(n,)`` (radians from x toward
+    y, of the major axis) of the ``confidence`` error ellipses of 2 × 2 ``covariances`` ``(n, 2, 2)``."""
+    covariances = np.asarray(covariances, float)
+    scale = np.sqrt(-2.0 * np.log(1.0 - confidence))  # χ² with 2 degrees of freedom
+    values, vectors = np.linalg.eigh(np.nan_to_num(covariances))
+    major, minor = np.sqrt(np.maximum(values[:, 1], 0)) * scale, np.sqrt(np.maximum(values[:, 0], 0)) * scale
+    bad = ~np.isfinite(covariances).all(axis=(1, 2))
+    major[bad] = minor[bad] = np.nan
+    return major, minor, np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1])

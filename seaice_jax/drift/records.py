@@ -14,13 +14,13 @@ the 1985 buffer check did, and names the file and line of the first record at fa
 import csv
 import os
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.io.files import write_csv
+from seaice_jax.files import write_csv
+from seaice_jax.timefmt import format_time, parse_time, seconds_since, time_after
 
 COLUMNS = ("floe_id", "time", "image", "pixel", "scan", "latitude", "longitude")
 
@@ -48,25 +48,31 @@ class FloeRecords:
         return self.floe.size
 
 
-def parse_time(text: str) -> datetime:
-    """An ISO 8601 date-time (``Z`` or an offset; naive means UTC) as an aware UTC datetime."""
-    moment = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-    return (moment if moment.tzinfo else moment.replace(tzinfo=UTC)).astimezone(UTC)
-
-
-def format_time(moment: datetime) -> str:
-    return moment.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def time_after(epoch: str, seconds: float) -> str:
-    """ISO 8601 UTC of ``seconds`` after ``epoch`` (ISO 8601)."""
-    return format_time(datetime.fromtimestamp(parse_time(epoch).timestamp() + float(seconds), UTC))
-
-
-def seconds_since(epoch: str, times) -> np.ndarray:
-    """Seconds from ``epoch`` (ISO 8601) of datetimes."""
-    origin = parse_time(epoch)
-    return np.array([(t - origin).total_seconds() for t in times], float)
+def _parse_record(row: dict, where: str, known):
+    """One record's ``(floe, time, image, [pixel, scan, latitude, longitude])``, checked: a floe id, a valid date,
+    finite numbers, latitude within ±90° and longitude within ±180°, a known image (``known``: ``None`` for any)."""
+    floe, image = row["floe_id"].strip(), row["image"].strip()
+    if not floe:
+        raise SeaiceError(f"{where}: empty floe_id")
+    try:
+        moment = parse_time(row["time"])
+    except ValueError:
+        raise SeaiceError(f"{where}: floe {floe}: invalid date {row['time']!r} (ISO 8601 expected, e.g. "
+                          "1983-03-08T14:05:00Z)") from None
+    numbers = []
+    for name in ("pixel", "scan", "latitude", "longitude"):
+        try:
+            value = float(row[name])
+        except (TypeError, ValueError):
+            raise SeaiceError(f"{where}: floe {floe}: {name} {row[name]!r} is not a number") from None
+        if not np.isfinite(value):
+            raise SeaiceError(f"{where}: floe {floe}: {name} is not finite")
+        numbers.append(value)
+    if abs(numbers[2]) > 90 or abs(numbers[3]) > 180:
+        raise SeaiceError(f"{where}: floe {floe}: position ({numbers[2]}, {numbers[3]}) outside ±90° / ±180°")
+    if known is not None and image not in known:
+        raise SeaiceError(f"{where}: floe {floe}: unknown image {image!r} (known: {', '.join(sorted(known))})")
+    return floe, moment, image, numbers
 
 
 def read_records(path: str | os.PathLike, images=None, epoch: str | None = None) -> FloeRecords:
@@ -93,27 +99,7 @@ def read_records(path: str | os.PathLike, images=None, epoch: str | None = None)
     for k, row in enumerate(rows):
         line = k + 2  # the header is line 1
         where = f"{path}, line {line}"
-        floe, image = row["floe_id"].strip(), row["image"].strip()
-        if not floe:
-            raise SeaiceError(f"{where}: empty floe_id")
-        try:
-            moment = parse_time(row["time"])
-        except ValueError:
-            raise SeaiceError(f"{where}: floe {floe}: invalid date {row['time']!r} (ISO 8601 expected, e.g. "
-                              "1983-03-08T14:05:00Z)") from None
-        numbers = []
-        for name in ("pixel", "scan", "latitude", "longitude"):
-            try:
-                value = float(row[name])
-            except (TypeError, ValueError):
-                raise SeaiceError(f"{where}: floe {floe}: {name} {row[name]!r} is not a number") from None
-            if not np.isfinite(value):
-                raise SeaiceError(f"{where}: floe {floe}: {name} is not finite")
-            numbers.append(value)
-        if abs(numbers[2]) > 90 or abs(numbers[3]) > 180:
-            raise SeaiceError(f"{where}: floe {floe}: position ({numbers[2]}, {numbers[3]}) outside ±90° / ±180°")
-        if known is not None and image not in known:
-            raise SeaiceError(f"{where}: floe {floe}: unknown image {image!r} (known: {', '.join(sorted(known))})")
+        floe, moment, image, numbers = _parse_record(row, where, known)
         if (floe, image) in seen:
             raise SeaiceError(f"{where}: floe {floe} appears twice in image {image} (first at line "
                               f"{seen[(floe, image)]}): duplicate id")

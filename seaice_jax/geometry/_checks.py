@@ -1,6 +1,7 @@
 """Turning NaN markers of impossible geometry into clear errors at the public API."""
 
 import jax
+import jax.core
 import numpy as np
 
 from seaice_jax.errors import GeometryError

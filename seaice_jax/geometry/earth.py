@@ -6,6 +6,7 @@ north pole.
 """
 
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from seaice_jax import _config  # noqa: F401  (float64)
 
@@ -145,7 +146,7 @@ def wrap_angle(angle):
     return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
 
 
-def great_circle_distance(lat1, lon1, lat2, lon2, radius=MEAN_RADIUS):
+def great_circle_distance(lat1, lon1, lat2, lon2, radius: ArrayLike = MEAN_RADIUS):
     """Great-circle distance (m) on the sphere between points given in radians (haversine-free, atan2 form)."""
     u1 = unit_vector(lat1, lon1)
     u2 = unit_vector(lat2, lon2)

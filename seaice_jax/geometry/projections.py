@@ -9,15 +9,20 @@
   *Map Projections — A Working Manual*, USGS PP 1395, eqs 15-1 to 15-11 and 21-33 to 21-40). The usual sea-ice
   grids (NSIDC EPSG:3413 and EPSG:3976) come from :func:`nsidc_polar_stereographic`.
 
-:class:`MapGrid` is a raster in any of them (remapped images, GeoTIFF, CF-NetCDF grids).
+All but :class:`ImageGrid` are :class:`Projection` s: metric ``forward``/``inverse``, their PROJ definition
+(:meth:`Projection.proj_string`) and CF grid-mapping attributes (:meth:`Projection.cf_grid_mapping`, with the WKT
+from pyproj). :class:`MapGrid` is a raster in any of them (remapped images, GeoTIFF, CF-NetCDF grids).
 
 Angles in radians, lengths in metres. Latitude/longitude are on the figure the projection is defined on (the
 sphere for the spherical ones, geodetic for an ellipsoid; see :mod:`seaice_jax.geometry.earth` for conversions).
 Tests compare every projection with PROJ (pyproj).
 """
 
+import abc
+
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from seaice_jax.geometry._vectors import along
@@ -26,7 +31,55 @@ from seaice_jax.geometry.earth import MEAN_RADIUS, WGS84_FLATTENING, WGS84_SEMI_
 from seaice_jax.geometry.earth import wrap_angle as _wrap
 
 
-class TangentPlane(eqx.Module):
+def _degrees(value) -> float:
+    return float(np.degrees(float(value)))
+
+
+def _figure(semi_major_axis, flattening) -> str:
+    """The PROJ figure: an ellipsoid ``+a +rf`` or, with flattening 0, a sphere ``+R``."""
+    a, f = float(semi_major_axis), float(flattening)
+    return f"+a={a!r} +rf={1 / f!r}" if f > 0 else f"+R={a!r}"
+
+
+class Projection(eqx.Module):
+    """A map projection: metric ``forward`` ``(latitude, longitude) -> (x, y)`` and ``inverse``, with its PROJ
+    definition and its CF grid mapping. Angles in radians, lengths in metres; arrays of any (broadcast) shape."""
+
+    @abc.abstractmethod
+    def forward(self, latitude, longitude) -> tuple[Array, Array]:
+        """``(x, y)`` metres of ``(latitude, longitude)`` radians."""
+
+    @abc.abstractmethod
+    def inverse(self, x, y) -> tuple[Array, Array]:
+        """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
+
+    @abc.abstractmethod
+    def proj_string(self) -> str:
+        """The PROJ definition (metres), e.g. ``+proj=stere +lat_0=90 ...``."""
+
+    @abc.abstractmethod
+    def cf_parameters(self) -> dict:
+        """CF 1.10 (Appendix F) ``grid_mapping_name`` and its parameters (degrees, metres); empty if CF has none."""
+
+    def epsg_code(self) -> int | None:
+        """The EPSG code of this exact projection, if it has one."""
+        return None
+
+    def cf_grid_mapping(self) -> dict:
+        """Attributes of a CF grid-mapping variable: :meth:`cf_parameters`, ``proj4_params``, ``crs_wkt`` (WKT2 by
+        pyproj) and ``epsg_code`` where there is one."""
+        import pyproj
+
+        code = self.epsg_code()
+        crs = pyproj.CRS.from_epsg(code) if code is not None else pyproj.CRS.from_proj4(self.proj_string())
+        attrs = {**self.cf_parameters(), "proj4_params": self.proj_string(), "crs_wkt": crs.to_wkt()}
+        if code is not None:
+            attrs["epsg_code"] = f"EPSG:{code}"
+        return attrs
+
+
+
+class TangentPlane(Projection):
     """Orthographic projection onto the plane tangent to the sphere at (``latitude``, ``longitude``).
 
     x points east, y north at the tangent point. Points on the far hemisphere map to NaN.
@@ -60,8 +113,16 @@ class TangentPlane(eqx.Module):
         longitude = jnp.arctan2(g[..., 1], g[..., 0])
         return jnp.where(h2 >= 0.0, latitude, jnp.nan), jnp.where(h2 >= 0.0, longitude, jnp.nan)
 
+    def proj_string(self) -> str:
+        return (f"+proj=ortho +lat_0={_degrees(self.latitude)!r} +lon_0={_degrees(self.longitude)!r} "
+                f"+R={float(self.radius)!r} +units=m +no_defs")
 
-class Equirectangular(eqx.Module):
+    def cf_parameters(self) -> dict:
+        return {"grid_mapping_name": "orthographic", "latitude_of_projection_origin": _degrees(self.latitude),
+                "longitude_of_projection_origin": _degrees(self.longitude), "earth_radius": float(self.radius)}
+
+
+class Equirectangular(Projection):
     """Equi-rectangular (plate carrée with true scale at the reference latitude), metric, on the sphere:
     x = R (λ − λ_ref) cos φ_ref, y = R (φ − φ_ref). Same as PROJ ``eqc`` with ``lat_ts = lat_0 = φ_ref``."""
 
@@ -73,13 +134,22 @@ class Equirectangular(eqx.Module):
         """``(x east, y north)`` metres of ``(latitude, longitude)`` radians."""
         x = self.radius * _wrap(_as_float(longitude) - self.reference_longitude) * jnp.cos(self.reference_latitude)
         y = self.radius * (_as_float(latitude) - self.reference_latitude)
-        return jnp.broadcast_arrays(x, y)
+        x, y = jnp.broadcast_arrays(x, y)
+        return x, y
 
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
         latitude = self.reference_latitude + _as_float(y) / self.radius
         longitude = _wrap(self.reference_longitude + _as_float(x) / (self.radius * jnp.cos(self.reference_latitude)))
-        return jnp.broadcast_arrays(latitude, longitude)
+        latitude, longitude = jnp.broadcast_arrays(latitude, longitude)
+        return latitude, longitude
+
+    def proj_string(self) -> str:
+        return (f"+proj=eqc +lat_ts={_degrees(self.reference_latitude)!r} +lat_0={_degrees(self.reference_latitude)!r} "
+                f"+lon_0={_degrees(self.reference_longitude)!r} +R={float(self.radius)!r} +units=m +no_defs")
+
+    def cf_parameters(self) -> dict:
+        return {}  # CF 1.10 has no equidistant cylindrical grid mapping: proj4_params and crs_wkt describe it
 
 
 class ImageGrid(eqx.Module):
@@ -124,15 +194,15 @@ class MapGrid(eqx.Module):
     """A raster in a metric map projection: rows run south (top row first), columns east.
 
     Pixel centres: x = x_first + column · pixel_width, y = y_first − row · pixel_height (0-based row, column).
-    ``projection`` is any projection here with metric ``forward``/``inverse`` (:class:`PolarStereographic`,
-    :class:`Equirectangular`, :class:`LambertConformalConic`, :class:`TangentPlane`).
+    ``projection`` is any :class:`Projection` (:class:`PolarStereographic`, :class:`Equirectangular`,
+    :class:`LambertConformalConic`, :class:`TangentPlane`).
 
     Attributes:
         x_first, y_first: m, centre of the top-left pixel. pixel_width, pixel_height: m.
         n_rows, n_columns: raster shape.
     """
 
-    projection: eqx.Module
+    projection: Projection
     x_first: Float[Array, ""] = eqx.field(converter=_as_float)
     y_first: Float[Array, ""] = eqx.field(converter=_as_float)
     pixel_width: Float[Array, ""] = eqx.field(converter=_as_float)
@@ -181,6 +251,12 @@ class MapGrid(eqx.Module):
         return (self.y_first - _as_float(y)) / self.pixel_height, (_as_float(x) - self.x_first) / self.pixel_width
 
 
+def _cf_figure(semi_major_axis, flattening) -> dict:
+    """CF figure attributes: ``semi_major_axis`` and ``inverse_flattening``, or ``earth_radius`` for a sphere."""
+    a, f = float(semi_major_axis), float(flattening)
+    return {"semi_major_axis": a, "inverse_flattening": 1 / f} if f > 0 else {"earth_radius": a}
+
+
 def _eccentricity(flattening):
     return jnp.sqrt(flattening * (2.0 - flattening))
 
@@ -205,7 +281,7 @@ def _latitude_from_t(t, e, iterations=12):
     return latitude
 
 
-class LambertConformalConic(eqx.Module):
+class LambertConformalConic(Projection):
     """Lambert conformal conic with one or two standard parallels (Snyder eqs 15-1 to 15-11).
 
     Attributes:
@@ -242,7 +318,8 @@ class LambertConformalConic(eqx.Module):
         theta = n * _wrap(_as_float(longitude) - self.central_meridian)
         x = self.false_easting + rho * jnp.sin(theta)
         y = self.false_northing + rho0 - rho * jnp.cos(theta)
-        return jnp.broadcast_arrays(x, y)
+        x, y = jnp.broadcast_arrays(x, y)
+        return x, y
 
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
@@ -255,10 +332,26 @@ class LambertConformalConic(eqx.Module):
         t = (rho / (self.semi_major_axis * big_f)) ** (1.0 / n)
         latitude = _latitude_from_t(t, e)
         longitude = _wrap(theta / n + self.central_meridian)
-        return jnp.broadcast_arrays(latitude, longitude)
+        latitude, longitude = jnp.broadcast_arrays(latitude, longitude)
+        return latitude, longitude
+
+    def proj_string(self) -> str:
+        return (f"+proj=lcc +lat_1={_degrees(self.standard_parallel_1)!r} "
+                f"+lat_2={_degrees(self.standard_parallel_2)!r} +lat_0={_degrees(self.origin_latitude)!r} "
+                f"+lon_0={_degrees(self.central_meridian)!r} "
+                f"+x_0={float(self.false_easting)!r} +y_0={float(self.false_northing)!r} "
+                f"{_figure(self.semi_major_axis, self.flattening)} +units=m +no_defs")
+
+    def cf_parameters(self) -> dict:
+        return {"grid_mapping_name": "lambert_conformal_conic",
+                "standard_parallel": [_degrees(self.standard_parallel_1), _degrees(self.standard_parallel_2)],
+                "latitude_of_projection_origin": _degrees(self.origin_latitude),
+                "longitude_of_central_meridian": _degrees(self.central_meridian),
+                "false_easting": float(self.false_easting), "false_northing": float(self.false_northing),
+                **_cf_figure(self.semi_major_axis, self.flattening)}
 
 
-class PolarStereographic(eqx.Module):
+class PolarStereographic(Projection):
     """Polar stereographic, north or south, true scale at ``standard_parallel`` (Snyder eqs 21-33 to 21-40).
 
     Attributes:
@@ -294,7 +387,8 @@ class PolarStereographic(eqx.Module):
         dl = _as_float(longitude) - self.central_meridian
         x = self.false_easting + rho * jnp.sin(dl)
         y = self.false_northing - hemisphere * rho * jnp.cos(dl)
-        return jnp.broadcast_arrays(x, y)
+        x, y = jnp.broadcast_arrays(x, y)
+        return x, y
 
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
@@ -303,7 +397,33 @@ class PolarStereographic(eqx.Module):
         dy = _as_float(y) - self.false_northing
         latitude = hemisphere * _latitude_from_t(jnp.hypot(dx, dy) / k, e)
         longitude = _wrap(self.central_meridian + jnp.arctan2(dx, -hemisphere * dy))
-        return jnp.broadcast_arrays(latitude, longitude)
+        latitude, longitude = jnp.broadcast_arrays(latitude, longitude)
+        return latitude, longitude
+
+    def proj_string(self) -> str:
+        pole = 90.0 if float(self.standard_parallel) >= 0 else -90.0
+        return (f"+proj=stere +lat_0={pole:g} +lat_ts={_degrees(self.standard_parallel)!r} "
+                f"+lon_0={_degrees(self.central_meridian)!r} +x_0={float(self.false_easting)!r} "
+                f"+y_0={float(self.false_northing)!r} {_figure(self.semi_major_axis, self.flattening)} +units=m "
+                "+no_defs")
+
+    def cf_parameters(self) -> dict:
+        return {"grid_mapping_name": "polar_stereographic",
+                "latitude_of_projection_origin": 90.0 if float(self.standard_parallel) >= 0 else -90.0,
+                "standard_parallel": _degrees(self.standard_parallel),
+                "straight_vertical_longitude_from_pole": _degrees(self.central_meridian),
+                "false_easting": float(self.false_easting), "false_northing": float(self.false_northing),
+                **_cf_figure(self.semi_major_axis, self.flattening)}
+
+    def epsg_code(self) -> int | None:
+        """3413 or 3976 for the NSIDC sea-ice grids (:func:`nsidc_polar_stereographic`), else ``None``."""
+        for code, hemisphere in ((3413, "north"), (3976, "south")):
+            reference = nsidc_polar_stereographic(hemisphere)
+            if all(np.isclose(float(getattr(self, f)), float(getattr(reference, f)), rtol=0, atol=1e-12)
+                   for f in ("standard_parallel", "central_meridian", "false_easting", "false_northing",
+                             "semi_major_axis", "flattening")):
+                return code
+        return None
 
 
 def nsidc_polar_stereographic(hemisphere: str = "north") -> PolarStereographic:

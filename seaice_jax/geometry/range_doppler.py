@@ -5,21 +5,27 @@ and Earth-fixed (metres, m/s); the velocity is the sensor's velocity relative to
 Doppler condition refers to stationary ground points.
 """
 
+from typing import Literal
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.typing import ArrayLike
 
 from seaice_jax.geometry._checks import raise_where_nan
 from seaice_jax.geometry.earth import MEAN_RADIUS
 
+LookSide = Literal["right", "left"]
+"""The look side of a radar, by name (files, flight plans, strip records); :func:`look_sign` turns it into the sign
+of eq. A5's ``c`` term, :data:`RIGHT` or :data:`LEFT`, which jitted code uses."""
 RIGHT = 1.0
-"""Look side: to the right of the direction of flight (the ``w`` vector of eq. A5)."""
+"""Sign of look side ``"right"``: to the right of the direction of flight (the ``w`` vector of eq. A5)."""
 LEFT = -1.0
-"""Look side: to the left of the direction of flight."""
+"""Sign of look side ``"left"``: to the left of the direction of flight."""
 
 
-def look_sign(look_side) -> jnp.ndarray:
-    """``"right"``/``"left"`` (or an array of +1/−1) -> float array of +1 (right) / −1 (left)."""
+def look_sign(look_side: LookSide | ArrayLike) -> jnp.ndarray:
+    """A :data:`LookSide` (or an array of +1/−1) -> float array of +1 (:data:`RIGHT`) / −1 (:data:`LEFT`)."""
     if isinstance(look_side, str):
         sides = {"right": RIGHT, "left": LEFT}
         if look_side not in sides:
@@ -37,7 +43,8 @@ def _dot(a, b):
 
 
 def ground_point(
-    position, velocity, slant_range, radius=MEAN_RADIUS, look_side="right", wavelength=0.0, doppler=0.0,
+    position, velocity, slant_range, radius=MEAN_RADIUS, look_side: LookSide | ArrayLike = "right", wavelength=0.0,
+    doppler=0.0,
     on_failure="raise",
 ):
     """Ground point imaged at slant range ``slant_range`` from a sensor at ``position`` moving with ``velocity``.

@@ -30,7 +30,10 @@ from seaice_jax.geometry.earth import wrap_angle as _wrap
 
 Direction = Literal["south", "north"]
 
-
+SCAN_UNKNOWNS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", "orbital_angle_span",
+                 "ascending_node")
+"""The five per-image unknowns of :class:`ScanModel`, in the order every estimate, covariance and file lists them
+(all angles in radians except ``subtrack_pixel``, a pixel)."""
 
 _DIRECTION_SIGN = {"south": 1.0, "north": -1.0}
 
@@ -104,11 +107,11 @@ class ScanModel(eqx.Module):
         n_pixels, n_scans: image size (pixels per scan line, scan lines).
     """
 
-    scanner_angle_span: Float[Array, ""]
-    subtrack_pixel: Float[Array, ""]
-    orbital_angle_first: Float[Array, ""]
-    orbital_angle_span: Float[Array, ""]
-    ascending_node: Float[Array, ""]
+    scanner_angle_span: Float[Array, ""] = eqx.field(converter=_as_float)
+    subtrack_pixel: Float[Array, ""] = eqx.field(converter=_as_float)
+    orbital_angle_first: Float[Array, ""] = eqx.field(converter=_as_float)
+    orbital_angle_span: Float[Array, ""] = eqx.field(converter=_as_float)
+    ascending_node: Float[Array, ""] = eqx.field(converter=_as_float)
     orbit: Orbit
     direction: Direction = eqx.field(static=True, default="south")
     n_pixels: int = eqx.field(static=True, default=512)
@@ -176,11 +179,13 @@ class ScanModel(eqx.Module):
             ``(latitude, longitude)``, each ``(...)``; longitude in (-π, π]. Outside jit, pixels whose line of
             sight misses the Earth (H > 0) raise :class:`~seaice_jax.errors.GeometryError`.
         """
-        latitude, longitude = self._forward(pixel, scan)
+        latitude, longitude = self.forward_unchecked(pixel, scan)
         raise_where_nan(latitude, "pixel", "the scanner's line of sight misses the Earth")
         return latitude, longitude
 
-    def _forward(self, pixel, scan):
+    def forward_unchecked(self, pixel, scan):
+        """:meth:`forward` without the check: NaN where the line of sight misses the Earth (for simulations that
+        mask such pixels themselves)."""
         pixel, scan = jnp.broadcast_arrays(jnp.asarray(pixel, float), jnp.asarray(scan, float))
         beta = self.orbit.central_angle(self.scanner_angle(pixel))
         eta = self.orbital_angle(scan)

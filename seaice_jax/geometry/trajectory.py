@@ -1,10 +1,12 @@
 """Closed-form sensor trajectories: position and velocity as pure functions of time.
 
-A trajectory is any callable ``t -> (position (3,), velocity (3,))`` in geocentric Earth-fixed metres and m/s.
+A :class:`Trajectory` maps time to ``(position (3,), velocity (3,))`` in geocentric Earth-fixed metres and m/s.
 Navigation records interpolated by :class:`seaice_jax.sensors.navigation.NavigationSpline` are trajectories;
 :class:`CircularTrajectory` is the analytic one used by simulations and tests (a constant-altitude great-circle
 flight, or a circular orbit ignoring Earth rotation).
 """
+
+import abc
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -14,7 +16,16 @@ from seaice_jax.geometry._vectors import along
 from seaice_jax.geometry.earth import MEAN_RADIUS, unit_vector
 
 
-class CircularTrajectory(eqx.Module):
+class Trajectory(eqx.Module):
+    """A sensor trajectory: position and velocity as a pure (jit-, vmap- and grad-able) function of time."""
+
+    @abc.abstractmethod
+    def __call__(self, time):
+        """Position ``(..., 3)`` m and velocity ``(..., 3)`` m/s (Earth-centred, Earth-fixed) at ``time`` ``(...)``
+        seconds."""
+
+
+class CircularTrajectory(Trajectory):
     """Uniform motion on a circle about the Earth's centre: s(t) = ρ (cos θ e1 + sin θ e2), θ = ω (t − epoch).
 
     Attributes:

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.io.files import atomic_path
+from seaice_jax.files import atomic_path
 
 LAND_COLOUR = (150, 120, 90)
 POINT_COLOUR = (220, 30, 30)
@@ -81,7 +81,7 @@ def write_movie(path: str | os.PathLike, frames, fps: float = 2.0) -> Path:
                              duration=int(1000 / fps), loop=0)
         else:
             height, width = frames.shape[1:3]
-            video = cv2.VideoWriter(str(temporary) + ".mp4", cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+            video = cv2.VideoWriter(str(temporary) + ".mp4", cv2.VideoWriter.fourcc(*"mp4v"), fps, (width, height))
             if not video.isOpened():
                 raise SeaiceError(f"{path}: OpenCV cannot write MP4 here (no mp4v encoder); write a .gif instead")
             for frame in frames:

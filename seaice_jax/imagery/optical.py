@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.io.files import atomic_path
+from seaice_jax.files import atomic_path
 
 
 def detect_dots(frame, min_area: int = 4, max_area: int = 2000):

@@ -107,15 +107,15 @@ def feature_guess(first, second, valid_first=None, valid_second=None):
         a function ``(row, column) -> (d_row, d_column)``, or ``None`` when too few features match.
     """
     images = [_as_uint8(a, m) for a, m in ((first, valid_first), (second, valid_second))]
-    orb = cv2.ORB_create(nfeatures=2000, edgeThreshold=15, patchSize=15)
+    orb = cv2.ORB.create(nfeatures=2000, edgeThreshold=15, patchSize=15)
     (k1, d1), (k2, d2) = (orb.detectAndCompute(a, None) for a in images)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return None
     matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
     if len(matches) < 8:
         return None
-    p1 = np.float32([k1[m.queryIdx].pt for m in matches])
-    p2 = np.float32([k2[m.trainIdx].pt for m in matches])
+    p1 = np.array([k1[m.queryIdx].pt for m in matches], np.float32)
+    p2 = np.array([k2[m.trainIdx].pt for m in matches], np.float32)
     transform, inliers = cv2.estimateAffinePartial2D(p1, p2, method=cv2.RANSAC, ransacReprojThreshold=2.0)
     if transform is None or inliers.sum() < 6:
         return None
@@ -134,8 +134,28 @@ def _as_uint8(image, valid):
     return np.nan_to_num(np.clip((image - low) / max(high - low, 1e-12), 0, 1) * 255).astype(np.uint8)
 
 
-def _subpixel(surface, i, j):
-    """Quadratic fit to the 3 x 3 neighbourhood of the maximum at ``(i, j)``: sub-pixel offset (di, dj)."""
+def correlation_peak(template, window):
+    """NCC (``TM_CCOEFF_NORMED``) of ``template`` at every offset in ``window`` (float32 arrays) and its maximum.
+
+    Returns:
+        ``(surface, i, j, correlation, sharpness)``: the surface ``(window − template + 1)`` per axis, the maximum's
+        indices, its value, and its value minus the best correlation more than two pixels from it.
+    """
+    surface = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+    i, j = np.unravel_index(int(np.argmax(surface)), surface.shape)
+    peak = float(surface[i, j])
+    away = surface.copy()
+    away[max(i - 2, 0):i + 3, max(j - 2, 0):j + 3] = -1.0
+    return surface, int(i), int(j), peak, peak - float(away.max())
+
+
+def quadratic_peak(surface, i, j):
+    """Quadratic fit to the 3 x 3 neighbourhood of the maximum at interior ``(i, j)``.
+
+    Returns:
+        ``(offset, hessian)``: the sub-pixel offset ``(di, dj)`` (clipped to ±1; zero where the fit has no
+        maximum) and the fit's ``(2, 2)`` second derivatives (per pixel²).
+    """
     patch = surface[i - 1:i + 2, j - 1:j + 2].astype(float)
     gi = 0.5 * (patch[2, 1] - patch[0, 1])
     gj = 0.5 * (patch[1, 2] - patch[1, 0])
@@ -144,9 +164,8 @@ def _subpixel(surface, i, j):
     hij = 0.25 * (patch[2, 2] - patch[2, 0] - patch[0, 2] + patch[0, 0])
     hessian = np.array([[hii, hij], [hij, hjj]])
     if np.linalg.det(hessian) <= 0 or hii >= 0:
-        return 0.0, 0.0
-    offset = -np.linalg.solve(hessian, [gi, gj])
-    return tuple(np.clip(offset, -1.0, 1.0))
+        return np.zeros(2), hessian
+    return np.clip(-np.linalg.solve(hessian, [gi, gj]), -1.0, 1.0), hessian
 
 
 def track(first, second, options: TrackingOptions = TrackingOptions(), points=None, valid_first=None,
@@ -173,49 +192,44 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
         guess_row, guess_column = predict(rows, columns)
     else:
         guess_row, guess_column = np.zeros_like(rows), np.zeros_like(rows)
-    a = np.where(valid_first, first, 0.0).astype(np.float32)
-    b = np.where(valid_second, second, 0.0).astype(np.float32)
-    h, s = options.patch // 2, options.search
+    images = (np.where(valid_first, first, 0.0).astype(np.float32), np.where(valid_second, second, 0.0).astype(
+        np.float32), valid_first, valid_second)
     n = rows.size
     out = {k: np.full(n, np.nan) for k in ("d_row", "d_column", "correlation", "sharpness")}
     status = np.full(n, GOOD)
     for k in range(n):
-        if not (np.isfinite(rows[k]) and np.isfinite(columns[k])):
-            status[k] = NO_DATA
-            continue
-        r, c = int(round(rows[k])), int(round(columns[k]))
-        gr, gc = int(round(guess_row[k])), int(round(guess_column[k]))
-        r2, c2 = r + gr, c + gc
-        if (r - h < 0 or c - h < 0 or r + h + 1 > a.shape[0] or c + h + 1 > a.shape[1] or r2 - h - s < 0
-                or c2 - h - s < 0 or r2 + h + s + 1 > b.shape[0] or c2 + h + s + 1 > b.shape[1]
-                or not valid_first[r - h:r + h + 1, c - h:c + h + 1].all()
-                or not valid_second[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1].all()):
-            status[k] = NO_DATA
-            continue
-        template = a[r - h:r + h + 1, c - h:c + h + 1]
-        if template.std() < options.min_contrast:
-            status[k] = LOW_CONTRAST
-            continue
-        window = b[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1]
-        surface = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
-        i, j = np.unravel_index(int(np.argmax(surface)), surface.shape)
-        peak = float(surface[i, j])
-        away = surface.copy()
-        away[max(i - 2, 0):i + 3, max(j - 2, 0):j + 3] = -1.0
-        out["correlation"][k], out["sharpness"][k] = peak, peak - float(away.max())
-        if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
-            status[k] = AT_EDGE
-            continue
-        di, dj = _subpixel(surface, i, j)
-        out["d_row"][k] = gr + i - s + di + (r - rows[k])
-        out["d_column"][k] = gc + j - s + dj + (c - columns[k])
-        if peak < options.min_correlation:
-            status[k] = LOW_CORRELATION
-        elif out["sharpness"][k] < options.min_sharpness:
-            status[k] = FLAT_PEAK
+        status[k], out["d_row"][k], out["d_column"][k], out["correlation"][k], out["sharpness"][k] = _track_point(
+            images, rows[k], columns[k], guess_row[k], guess_column[k], options)
     result = Displacements(rows, columns, out["d_row"], out["d_column"], out["correlation"], out["sharpness"],
                            status)
     return median_test(result, options)
+
+
+def _track_point(images, row, column, guess_row, guess_column, options: TrackingOptions):
+    """One point: ``(status, d_row, d_column, correlation, sharpness)`` (NaN where not measured). ``images``: the
+    two images with no data as 0 (float32) and their validity masks."""
+    a, b, valid_first, valid_second = images
+    h, s = options.patch // 2, options.search
+    if not (np.isfinite(row) and np.isfinite(column)):
+        return NO_DATA, np.nan, np.nan, np.nan, np.nan
+    r, c = int(round(row)), int(round(column))
+    gr, gc = int(round(guess_row)), int(round(guess_column))
+    r2, c2 = r + gr, c + gc
+    if (r - h < 0 or c - h < 0 or r + h + 1 > a.shape[0] or c + h + 1 > a.shape[1] or r2 - h - s < 0
+            or c2 - h - s < 0 or r2 + h + s + 1 > b.shape[0] or c2 + h + s + 1 > b.shape[1]
+            or not valid_first[r - h:r + h + 1, c - h:c + h + 1].all()
+            or not valid_second[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1].all()):
+        return NO_DATA, np.nan, np.nan, np.nan, np.nan
+    template = a[r - h:r + h + 1, c - h:c + h + 1]
+    if template.std() < options.min_contrast:
+        return LOW_CONTRAST, np.nan, np.nan, np.nan, np.nan
+    surface, i, j, peak, sharpness = correlation_peak(template, b[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1])
+    if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
+        return AT_EDGE, np.nan, np.nan, peak, sharpness
+    (di, dj), _ = quadratic_peak(surface, i, j)
+    status = LOW_CORRELATION if peak < options.min_correlation else FLAT_PEAK if sharpness < options.min_sharpness \
+        else GOOD
+    return status, gr + i - s + di + (r - row), gc + j - s + dj + (c - column), peak, sharpness
 
 
 def median_test(displacements: Displacements, options: TrackingOptions = TrackingOptions()) -> Displacements:

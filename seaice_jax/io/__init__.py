@@ -1,5 +1,2 @@
-"""Reading and writing files: CSV, later station files, projects, GeoJSON, NetCDF and GeoTIFF."""
-
-from seaice_jax.io.files import atomic_path, write_csv, write_json
-
-__all__ = ["atomic_path", "write_csv", "write_json"]
+"""Reading and writing files: stations, radar projects, image sequences and products (CSV, GeoJSON, CF-NetCDF,
+GeoTIFF); validation at the boundary. Atomic writing itself is :mod:`seaice_jax.files`."""

@@ -1,10 +1,11 @@
 """Products other tools read: remapped images as GeoTIFF, drift and deformation as CF-NetCDF, trajectories as
-GeoJSON. Every file is written atomically (:func:`~seaice_jax.io.files.atomic_path`).
+GeoJSON. Every file is written atomically (:func:`~seaice_jax.files.atomic_path`).
 
 The drift file follows the layout of the sea-ice drift products researchers already use (e.g. the OSI SAF
 low-resolution drift, OSI-405): displacements ``dX``, ``dY`` in metres along the grid's x and y axes
 (``standard_name`` ``sea_ice_x_displacement`` / ``sea_ice_y_displacement``), their standard errors linked by
-``ancillary_variables``, start and end latitude/longitude, ``time_bnds``, a ``crs`` grid-mapping variable and a
+``ancillary_variables``, start and end latitude/longitude, ``time_bnds``, a ``crs`` grid-mapping variable (CF
+attributes, PROJ string and WKT from :meth:`~seaice_jax.geometry.projections.Projection.cf_grid_mapping`) and a
 ``status_flag``; velocities both along the grid axes (``u_grid``, ``v_grid``) and toward geographic east and north
 (``u_east``, ``v_north``). Written with xarray/netCDF4 and tifffile.
 """
@@ -15,85 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.geometry.projections import (
-    Equirectangular,
-    LambertConformalConic,
-    MapGrid,
-    PolarStereographic,
-    TangentPlane,
-    nsidc_polar_stereographic,
-)
-from seaice_jax.io.files import atomic_path, write_geojson
-
-
-def _deg(value) -> float:
-    return float(np.degrees(float(value)))
-
-
-def _ellipsoid(projection) -> str:
-    a, f = float(projection.semi_major_axis), float(projection.flattening)
-    return f"+a={a!r} +rf={1 / f!r}" if f > 0 else f"+R={a!r}"
-
-
-def proj_string(projection) -> str:
-    """The PROJ definition of a projection of :mod:`seaice_jax.geometry.projections` (metres)."""
-    if isinstance(projection, PolarStereographic):
-        pole = 90.0 if float(projection.standard_parallel) >= 0 else -90.0
-        return (f"+proj=stere +lat_0={pole:g} +lat_ts={_deg(projection.standard_parallel)!r} "
-                f"+lon_0={_deg(projection.central_meridian)!r} +x_0={float(projection.false_easting)!r} "
-                f"+y_0={float(projection.false_northing)!r} {_ellipsoid(projection)} +units=m +no_defs")
-    if isinstance(projection, LambertConformalConic):
-        return (f"+proj=lcc +lat_1={_deg(projection.standard_parallel_1)!r} "
-                f"+lat_2={_deg(projection.standard_parallel_2)!r} +lat_0={_deg(projection.origin_latitude)!r} "
-                f"+lon_0={_deg(projection.central_meridian)!r} +x_0={float(projection.false_easting)!r} "
-                f"+y_0={float(projection.false_northing)!r} {_ellipsoid(projection)} +units=m +no_defs")
-    if isinstance(projection, Equirectangular):
-        return (f"+proj=eqc +lat_ts={_deg(projection.reference_latitude)!r} "
-                f"+lat_0={_deg(projection.reference_latitude)!r} +lon_0={_deg(projection.reference_longitude)!r} "
-                f"+R={float(projection.radius)!r} +units=m +no_defs")
-    if isinstance(projection, TangentPlane):
-        return (f"+proj=ortho +lat_0={_deg(projection.latitude)!r} +lon_0={_deg(projection.longitude)!r} "
-                f"+R={float(projection.radius)!r} +units=m +no_defs")
-    raise SeaiceError(f"no PROJ definition for {type(projection).__name__}")
-
-
-def epsg_code(projection) -> int | None:
-    """3413 or 3976 for the NSIDC polar stereographic grids, else ``None``."""
-    if isinstance(projection, PolarStereographic):
-        for code, hemisphere in ((3413, "north"), (3976, "south")):
-            reference = nsidc_polar_stereographic(hemisphere)
-            if all(np.isclose(float(getattr(projection, f)), float(getattr(reference, f)), rtol=0, atol=1e-12)
-                   for f in ("standard_parallel", "central_meridian", "false_easting", "false_northing",
-                             "semi_major_axis", "flattening")):
-                return code
-    return None
-
-
-def cf_grid_mapping(projection) -> dict:
-    """CF grid-mapping attributes (CF 1.10, Appendix F) plus ``proj4_params`` and ``crs_wkt`` where known."""
-    attrs = {"proj4_params": proj_string(projection)}
-    if isinstance(projection, PolarStereographic):
-        attrs.update(grid_mapping_name="polar_stereographic",
-                     latitude_of_projection_origin=90.0 if float(projection.standard_parallel) >= 0 else -90.0,
-                     standard_parallel=_deg(projection.standard_parallel),
-                     straight_vertical_longitude_from_pole=_deg(projection.central_meridian),
-                     false_easting=float(projection.false_easting), false_northing=float(projection.false_northing),
-                     semi_major_axis=float(projection.semi_major_axis),
-                     inverse_flattening=1 / float(projection.flattening))
-    elif isinstance(projection, LambertConformalConic):
-        attrs.update(grid_mapping_name="lambert_conformal_conic",
-                     standard_parallel=[_deg(projection.standard_parallel_1), _deg(projection.standard_parallel_2)],
-                     latitude_of_projection_origin=_deg(projection.origin_latitude),
-                     longitude_of_central_meridian=_deg(projection.central_meridian),
-                     false_easting=float(projection.false_easting), false_northing=float(projection.false_northing))
-    elif isinstance(projection, TangentPlane):
-        attrs.update(grid_mapping_name="orthographic", latitude_of_projection_origin=_deg(projection.latitude),
-                     longitude_of_projection_origin=_deg(projection.longitude), earth_radius=float(projection.radius))
-    code = epsg_code(projection)
-    if code is not None:
-        attrs["epsg_code"] = f"EPSG:{code}"
-    return attrs
-
+from seaice_jax.files import atomic_path, write_geojson
+from seaice_jax.geometry.projections import MapGrid
 
 # ---------------------------------------------------------------------------------------------- GeoTIFF
 
@@ -114,8 +38,8 @@ def write_geotiff(path: str | os.PathLike, image, grid: MapGrid, description: st
         raise SeaiceError(f"{path}: image shape {image.shape} is not the grid's {grid.shape}")
     width, height = float(grid.pixel_width), float(grid.pixel_height)
     left, top = float(grid.x_first) - 0.5 * width, float(grid.y_first) + 0.5 * height
-    code = epsg_code(grid.projection)
-    citation = proj_string(grid.projection) + "|"
+    code = grid.projection.epsg_code()
+    citation = grid.projection.proj_string() + "|"
     # GeoKeyDirectory: version 1.1.0; GTModelType projected; GTRasterType pixel-is-area; the projected system
     keys = [(1024, 0, 1, 1), (1025, 0, 1, 1)]
     if code is not None:
@@ -178,7 +102,7 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
 
     east = fields.get("u_east")
     data = {
-        "crs": ((), np.int32(0), cf_grid_mapping(grid.projection)),
+        "crs": ((), np.int32(0), grid.projection.cf_grid_mapping()),
         "lat": (("yc", "xc"), lat, {"standard_name": "latitude", "units": "degrees_north",
                                     "long_name": "latitude of the start position"}),
         "lon": (("yc", "xc"), lon, {"standard_name": "longitude", "units": "degrees_east",
@@ -236,7 +160,7 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
 
 def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, longitude, epoch: str) -> Path:
     """One LineString feature per floe (RFC 7946: [longitude, latitude] degrees), with its ISO 8601 times."""
-    from seaice_jax.drift.records import time_after
+    from seaice_jax.timefmt import time_after
 
     floe, time = np.asarray(floe), np.asarray(time, float)
     features = []
@@ -248,5 +172,5 @@ def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, lo
         geometry = ({"type": "LineString", "coordinates": coordinates} if len(k) > 1
                     else {"type": "Point", "coordinates": coordinates[0]})
         features.append({"type": "Feature", "geometry": geometry,
-                         "properties": {"floe_id": str(f), "times": [time_after(epoch, time[i]) for i in k]}})
+                         "properties": {"floe_id": str(f), "times": [time_after(epoch, float(time[i])) for i in k]}})
     return write_geojson(path, features)

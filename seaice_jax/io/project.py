@@ -33,7 +33,6 @@ sweep delay and range scale against the altimeter; one strip only).
 Every error names the file and line; reading never writes anything.
 """
 
-import csv
 import os
 import tomllib
 from dataclasses import dataclass, replace
@@ -42,25 +41,15 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
+from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.projections import TangentPlane
-from seaice_jax.io.files import atomic_path, write_csv
+from seaice_jax.io.tables import read_table
 from seaice_jax.sensors.slar import ImageFrame, check_time_marks
-from seaice_jax.sensors.strips import Measurements, StripRecord
+from seaice_jax.sensors.strips import Coverage, Measurements, StripRecord
 
 NAVIGATION_COLUMNS = ("time_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "altitude_m")
 KINDS = ("tie", "drift", "control", "nadir")
 _MARK_OFFSET = -3.0  # mm: where the simulated films carry their time marks, beside the range reference line
-
-
-@dataclass(frozen=True)
-class ProjectCoverage:
-    """One coverage of a project: strips, measurements (point indices into ``Project.point_ids``), control."""
-
-    name: str
-    epoch: float
-    strips: list
-    measurements: Measurements
-    control: dict  # point index -> (x, y, sigma) map metres
 
 
 @dataclass(frozen=True)
@@ -71,35 +60,12 @@ class Project:
     plane: TangentPlane
     point_ids: tuple[str, ...]
     point_kinds: tuple[str, ...]
-    coverages: tuple[ProjectCoverage, ...]
+    coverages: tuple[Coverage, ...]
     surface: str = "ice"
 
 
-def _read_table(path: Path, columns, numeric=None):
-    """Rows of a CSV as dicts, checking the header; yields (line number, row)."""
-    if not path.exists():
-        raise SeaiceError(f"{path}: file not found")
-    with open(path, newline="") as stream:
-        reader = csv.DictReader(stream)
-        header = [c.strip() for c in reader.fieldnames or []]
-        missing = [c for c in columns if c not in header]
-        if missing:
-            raise SeaiceError(f"{path}, line 1: missing column(s) {', '.join(missing)}")
-        rows = []
-        for line, raw in enumerate(reader, start=2):
-            row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
-            for column in numeric or ():
-                try:
-                    row[column] = float(row[column])
-                except ValueError:
-                    raise SeaiceError(f"{path}, line {line}: column {column!r} value {row[column]!r} is not a "
-                                      "number") from None
-            rows.append((line, row))
-    return rows
-
-
 def _numbers(path, columns):
-    rows = _read_table(path, columns, columns)
+    rows = read_table(path, columns, columns)
     return np.array([[row[c] for c in columns] for _, row in rows], float).reshape(-1, len(columns)), rows
 
 
@@ -144,6 +110,94 @@ def _read_strip(strip, s, base, label):
     return name, frame, record
 
 
+def _map_plane_and_surface(path: Path, project: dict) -> tuple[TangentPlane, str]:
+    """The ``[project]`` table's map plane and surface (``"ice"`` or ``"land"``)."""
+    centre = project.get("map_centre_deg")
+    if not (isinstance(centre, list) and len(centre) == 2):
+        raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude]")
+    surface = project.get("surface", "ice")
+    if surface not in ("ice", "land"):
+        raise SeaiceError(f"{path}: [project] surface must be 'ice' or 'land', got {surface!r}")
+    return TangentPlane(np.radians(centre[0]), np.radians(centre[1])), surface
+
+
+def _check_measurement(row: dict, where: str, strip_index: dict, kinds: dict, seen: dict, nadir_lines: dict,
+                       line: int) -> None:
+    """One measurement row: a known strip and kind, the same kind as elsewhere, measured once per strip, and a
+    nadir return on one strip only (records what it has seen in ``kinds``, ``seen`` and ``nadir_lines``)."""
+    if row["strip"] not in strip_index:
+        raise SeaiceError(f"{where}: unknown strip {row['strip']!r} (coverage has "
+                          f"{', '.join(strip_index) or 'no strips'})")
+    if row["kind"] not in KINDS:
+        raise SeaiceError(f"{where}: point {row['point']}: kind {row['kind']!r} is not one of {', '.join(KINDS)}")
+    first = kinds.setdefault(row["point"], (row["kind"], where))
+    if first[0] != row["kind"]:
+        raise SeaiceError(f"{where}: point {row['point']} is {row['kind']!r} here but {first[0]!r} at {first[1]}")
+    key = (row["point"], row["strip"])
+    if key in seen:
+        raise SeaiceError(f"{where}: point {row['point']} already measured on strip {row['strip']} "
+                          f"(line {seen[key]})")
+    if row["kind"] == "nadir":
+        if row["point"] in nadir_lines:
+            raise SeaiceError(f"{where}: nadir return {row['point']} already measured (line "
+                              f"{nadir_lines[row['point']]}); a nadir return belongs to one strip")
+        nadir_lines[row["point"]] = line
+    seen[key] = line
+
+
+def _read_measurements(path: Path, strip_index: dict, frames: list, ids: dict, kinds: dict):
+    """The measurement CSV of a coverage: its :class:`Measurements` (comparator -> image coordinates) and each
+    strip's nadir returns ``[(x, y), ...]``."""
+    point, strip_of, x, y, seen, nadir_lines = [], [], [], [], {}, {}
+    nadir = [[] for _ in frames]
+    for line, row in read_table(path, ("point", "strip", "kind", "x_mm", "y_mm"), ("x_mm", "y_mm")):
+        _check_measurement(row, f"{path}, line {line}", strip_index, kinds, seen, nadir_lines, line)
+        j = strip_index[row["strip"]]
+        image_x, image_y = (float(v) for v in frames[j].to_image(row["x_mm"], row["y_mm"]))
+        if row["kind"] == "nadir":
+            nadir[j].append((image_x, image_y))
+            continue
+        point.append(ids.setdefault(row["point"], len(ids)))
+        strip_of.append(j)
+        x.append(image_x)
+        y.append(image_y)
+    return Measurements(np.array(point, int), np.array(strip_of, int), np.array(x), np.array(y)), nadir
+
+
+def _read_control(path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> dict:
+    """The control CSV of a coverage: ``{point index: (x, y, σ)}`` map metres."""
+    control = {}
+    for line, row in read_table(path, ("point", "lat", "lon", "sigma_m"), ("lat", "lon", "sigma_m")):
+        if abs(row["lat"]) > 90 or not row["sigma_m"] > 0:
+            raise SeaiceError(f"{path}, line {line}: point {row['point']}: latitude within ±90° and sigma_m > 0 "
+                              "required")
+        if kinds.get(row["point"], ("control",))[0] != "control":
+            raise SeaiceError(f"{path}, line {line}: point {row['point']} is a control point here but "
+                              f"{kinds[row['point']][0]!r} at {kinds[row['point']][1]}")
+        cx, cy = plane.forward(np.radians(row["lat"]), np.radians(row["lon"]))
+        control[ids.setdefault(row["point"], len(ids))] = (float(cx), float(cy), row["sigma_m"])
+    return control
+
+
+def _read_coverage(cov: dict, c: int, path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> Coverage:
+    """One ``[[coverage]]`` table with its strips, measurements and control points."""
+    base, label = path.parent, f"{path}: coverage {cov.get('name', c + 1)!r}"
+    strips, frames, strip_index = [], [], {}
+    for s, strip in enumerate(cov.get("strip", [])):
+        name, frame, record = _read_strip(strip, s, base, label)
+        strip_index[name] = s
+        strips.append(record)
+        frames.append(frame)
+    if "measurements" not in cov:
+        raise SeaiceError(f"{label}: missing measurements")
+    measurements, nadir = _read_measurements(base / cov["measurements"], strip_index, frames, ids, kinds)
+    strips = [replace(strip, nadir_x=np.array([v[0] for v in nadir[j]]), nadir_y=np.array([v[1] for v in nadir[j]]))
+              for j, strip in enumerate(strips)]
+    control = _read_control(base / cov["control"], plane, ids, kinds) if cov.get("control") else {}
+    return Coverage(cov.get("name", f"coverage {c + 1}"), float(cov.get("epoch_s", 0.0)), tuple(strips),
+                    measurements, control)
+
+
 def read_project(path: str | os.PathLike) -> Project:
     """Read and validate a project (see the module docstring)."""
     path = Path(path)
@@ -153,79 +207,11 @@ def read_project(path: str | os.PathLike) -> Project:
         raise SeaiceError(f"{path}: file not found") from None
     except tomllib.TOMLDecodeError as error:
         raise SeaiceError(f"{path}: {error}") from None
-    base = path.parent
     project = config.get("project", {})
-    centre = project.get("map_centre_deg")
-    if not (isinstance(centre, list) and len(centre) == 2):
-        raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude]")
-    plane = TangentPlane(np.radians(centre[0]), np.radians(centre[1]))
-    surface = project.get("surface", "ice")
-    if surface not in ("ice", "land"):
-        raise SeaiceError(f"{path}: [project] surface must be 'ice' or 'land', got {surface!r}")
+    plane, surface = _map_plane_and_surface(path, project)
     ids: dict[str, int] = {}
     kinds: dict[str, tuple[str, str]] = {}  # point -> (kind, where it was first given)
-    coverages = []
-    for c, cov in enumerate(config.get("coverage", [])):
-        label = f"{path}: coverage {cov.get('name', c + 1)!r}"
-        strips, frames, strip_index = [], [], {}
-        for s, strip in enumerate(cov.get("strip", [])):
-            name, frame, record = _read_strip(strip, s, base, label)
-            strip_index[name] = s
-            strips.append(record)
-            frames.append(frame)
-        if "measurements" not in cov:
-            raise SeaiceError(f"{label}: missing measurements")
-        measurement_path = base / cov["measurements"]
-        point, strip_of, x, y, seen, nadir_lines = [], [], [], [], {}, {}
-        nadir = {s: [] for s in range(len(strips))}
-        for line, row in _read_table(measurement_path, ("point", "strip", "kind", "x_mm", "y_mm"), ("x_mm", "y_mm")):
-            where = f"{measurement_path}, line {line}"
-            if row["strip"] not in strip_index:
-                raise SeaiceError(f"{where}: unknown strip {row['strip']!r} (coverage has "
-                                  f"{', '.join(strip_index) or 'no strips'})")
-            if row["kind"] not in KINDS:
-                raise SeaiceError(f"{where}: point {row['point']}: kind {row['kind']!r} is not one of "
-                                  f"{', '.join(KINDS)}")
-            first = kinds.setdefault(row["point"], (row["kind"], where))
-            if first[0] != row["kind"]:
-                raise SeaiceError(f"{where}: point {row['point']} is {row['kind']!r} here but {first[0]!r} at "
-                                  f"{first[1]}")
-            key = (row["point"], row["strip"])
-            if key in seen:
-                raise SeaiceError(f"{where}: point {row['point']} already measured on strip {row['strip']} "
-                                  f"(line {seen[key]})")
-            if row["kind"] == "nadir":
-                if row["point"] in nadir_lines:
-                    raise SeaiceError(f"{where}: nadir return {row['point']} already measured (line "
-                                      f"{nadir_lines[row['point']]}); a nadir return belongs to one strip")
-                nadir_lines[row["point"]] = line
-            seen[key] = line
-            j = strip_index[row["strip"]]
-            image_x, image_y = (float(v) for v in frames[j].to_image(row["x_mm"], row["y_mm"]))
-            if row["kind"] == "nadir":
-                nadir[j].append((image_x, image_y))
-                continue
-            point.append(ids.setdefault(row["point"], len(ids)))
-            strip_of.append(j)
-            x.append(image_x)
-            y.append(image_y)
-        strips = [replace(strip, nadir_x=np.array([v[0] for v in nadir[j]]), nadir_y=np.array([v[1] for v in nadir[j]]))
-                  for j, strip in enumerate(strips)]
-        control = {}
-        if cov.get("control"):
-            control_path = base / cov["control"]
-            for line, row in _read_table(control_path, ("point", "lat", "lon", "sigma_m"), ("lat", "lon", "sigma_m")):
-                if abs(row["lat"]) > 90 or not row["sigma_m"] > 0:
-                    raise SeaiceError(f"{control_path}, line {line}: point {row['point']}: latitude within ±90° and "
-                                      "sigma_m > 0 required")
-                if kinds.get(row["point"], ("control",))[0] != "control":
-                    raise SeaiceError(f"{control_path}, line {line}: point {row['point']} is a control point here "
-                                      f"but {kinds[row['point']][0]!r} at {kinds[row['point']][1]}")
-                cx, cy = plane.forward(np.radians(row["lat"]), np.radians(row["lon"]))
-                control[ids.setdefault(row["point"], len(ids))] = (float(cx), float(cy), row["sigma_m"])
-        coverages.append(ProjectCoverage(cov.get("name", f"coverage {c + 1}"), float(cov.get("epoch_s", 0.0)), strips,
-                                         Measurements(np.array(point, int), np.array(strip_of, int), np.array(x),
-                                                      np.array(y)), control))
+    coverages = [_read_coverage(cov, c, path, plane, ids, kinds) for c, cov in enumerate(config.get("coverage", []))]
     if not coverages:
         raise SeaiceError(f"{path}: no [[coverage]] tables")
     point_kinds = tuple(kinds.get(p, ("control",))[0] for p in ids)
@@ -257,7 +243,7 @@ def write_project(scenario, out_dir: str | os.PathLike) -> Path:
     lines = ["[project]", f'name = "{scenario.name}"', f"map_centre_deg = [{centre[0]!r}, {centre[1]!r}]",
              f'surface = "{surface}"', ""]
     truth_rows = {"point": [], "coverage": [], "kind": [], "lat": [], "lon": [], "x_m": [], "y_m": []}
-    for c, coverage in enumerate(scenario.coverages, start=1):
+    for c, (coverage, truth) in enumerate(zip(scenario.coverages, scenario.truth, strict=True), start=1):
         m = coverage.measurements
         frames = [ImageFrame.placed(np.radians(0.4 + 0.15 * j), (20.0 + j, 35.0 - 0.5 * j))
                   for j in range(len(coverage.strips))]
@@ -298,14 +284,14 @@ def write_project(scenario, out_dir: str | os.PathLike) -> Path:
                       f"far_range_mm = {[float(v) for v in far]!r}",
                       f"sweep_delay_mm = {strip.sweep_delay!r}", f"range_scale_m_per_mm = {strip.range_scale!r}",
                       f'look_side = "{strip.look_side}"', ""]
-        lat, lon = scenario.plane.inverse(coverage.truth[:, 0], coverage.truth[:, 1])
+        lat, lon = scenario.plane.inverse(truth.positions[:, 0], truth.positions[:, 1])
         truth_rows["point"] += ids
         truth_rows["coverage"] += [coverage.name] * len(ids)
         truth_rows["kind"] += list(scenario.kinds)
         truth_rows["lat"] += list(np.degrees(np.asarray(lat)))
         truth_rows["lon"] += list(np.degrees(np.asarray(lon)))
-        truth_rows["x_m"] += list(coverage.truth[:, 0])
-        truth_rows["y_m"] += list(coverage.truth[:, 1])
+        truth_rows["x_m"] += list(truth.positions[:, 0])
+        truth_rows["y_m"] += list(truth.positions[:, 1])
     write_csv(out / "truth.csv", truth_rows, float_format="%.12g")
     with atomic_path(out / "project.toml") as temporary:
         temporary.write_text("\n".join(lines))

@@ -31,16 +31,17 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import ControlPoints
-from seaice_jax.drift.records import format_time, parse_time, time_after
 from seaice_jax.errors import SeaiceError
+from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
-from seaice_jax.geometry.scan import ScanModel, satellite_orbit
-from seaice_jax.io.files import atomic_path, write_csv
-from seaice_jax.io.project import _read_table
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, satellite_orbit
+from seaice_jax.io.tables import read_table
+from seaice_jax.sensors.control import ControlPoints
+from seaice_jax.timefmt import format_time, parse_time, time_after
 
-MODEL_KEYS = ("scanner_angle_span_deg", "subtrack_pixel", "orbital_angle_first_deg", "orbital_angle_span_deg",
-              "ascending_node_deg")
+MODEL_KEYS = tuple(name if name == "subtrack_pixel" else f"{name}_deg" for name in SCAN_UNKNOWNS)
+"""The keys of a given scan model: its unknowns (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`), angles in
+degrees."""
 PROJECTIONS = ("nsidc-north", "nsidc-south", "equirectangular")
 
 
@@ -52,7 +53,7 @@ class SequenceImage:
     name: str
     time: float
     data: np.ndarray
-    orbit: object
+    orbit: Orbit
     model: ScanModel | None
     control: ControlPoints | None
     direction: str
@@ -110,7 +111,7 @@ def read_image_file(path: Path) -> np.ndarray:
 
 def _read_control(path: Path) -> ControlPoints:
     columns = ("pixel", "scan", "latitude", "longitude", "sigma_m")
-    rows = _read_table(path, ("id", *columns), columns)
+    rows = read_table(path, ("id", *columns), columns)
     if not rows:
         raise SeaiceError(f"{path}: no control points")
     for line, row in rows:
@@ -120,6 +121,41 @@ def _read_control(path: Path) -> ControlPoints:
     values = {c: np.array([row[c] for _, row in rows]) for c in columns}
     return ControlPoints(values["pixel"], values["scan"], np.radians(values["latitude"]),
                          np.radians(values["longitude"]), values["sigma_m"], [row["id"] for _, row in rows])
+
+
+def _given_model(entry: dict, label: str, orbit: Orbit, direction: str, shape) -> ScanModel:
+    """The scan model an ``[[image]]`` gives (:data:`MODEL_KEYS`, angles in degrees) for an image of ``shape``."""
+    if direction not in ("south", "north"):
+        raise SeaiceError(f"{label}: a given scan model needs direction = 'south' or 'north'")
+    unknowns = {unknown: float(entry[key]) if key == "subtrack_pixel" else np.radians(entry[key])
+                for unknown, key in zip(SCAN_UNKNOWNS, MODEL_KEYS, strict=True)}
+    return ScanModel(**unknowns, orbit=orbit, direction=direction, n_pixels=shape[1], n_scans=shape[0])
+
+
+def _read_image(entry: dict, k: int, path: Path, epoch: str) -> SequenceImage:
+    """One ``[[image]]`` table: its time, pixels, orbit, and control points or a given scan model."""
+    name = str(entry.get("name", f"image {k + 1}"))
+    label = f"{path}: image {name!r}"
+    try:
+        time = (parse_time(entry["time"]) - parse_time(epoch)).total_seconds()
+    except (KeyError, ValueError):
+        raise SeaiceError(f"{label}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
+    if "file" not in entry:
+        raise SeaiceError(f"{label}: no file")
+    data = read_image_file(path.parent / entry["file"])
+    try:
+        orbit = satellite_orbit(entry.get("satellite", "NOAA-7"), altitude=float(entry.get("altitude_m", 0.0)))
+    except ValueError as error:
+        raise SeaiceError(f"{label}: {error}") from None
+    direction = entry.get("direction", "auto")
+    model = control = None
+    if "control" in entry:
+        control = _read_control(path.parent / entry["control"])
+    elif all(key in entry for key in MODEL_KEYS):
+        model = _given_model(entry, label, orbit, direction, data.shape)
+    else:
+        raise SeaiceError(f"{label}: give either control = 'file.csv' or the scan model ({', '.join(MODEL_KEYS)})")
+    return SequenceImage(name, time, data, orbit, model, control, direction)
 
 
 def read_sequence(path: str | os.PathLike) -> SequenceProject:
@@ -144,36 +180,11 @@ def read_sequence(path: str | os.PathLike) -> SequenceProject:
         raise SeaiceError(f"{path}: [grid] needs centre_deg, pixel_m and shape ({error})") from None
     images, names = [], set()
     for k, entry in enumerate(document.get("image", [])):
-        name = str(entry.get("name", f"image {k + 1}"))
-        label = f"{path}: image {name!r}"
-        if name in names:
-            raise SeaiceError(f"{label}: duplicate image name")
-        names.add(name)
-        try:
-            time = (parse_time(entry["time"]) - parse_time(epoch)).total_seconds()
-        except (KeyError, ValueError):
-            raise SeaiceError(f"{label}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
-        if "file" not in entry:
-            raise SeaiceError(f"{label}: no file")
-        data = read_image_file(path.parent / entry["file"])
-        try:
-            orbit = satellite_orbit(entry.get("satellite", "NOAA-7"), altitude=float(entry.get("altitude_m", 0.0)))
-        except ValueError as error:
-            raise SeaiceError(f"{label}: {error}") from None
-        direction = entry.get("direction", "auto")
-        model = control = None
-        if "control" in entry:
-            control = _read_control(path.parent / entry["control"])
-        elif all(key in entry for key in MODEL_KEYS):
-            if direction not in ("south", "north"):
-                raise SeaiceError(f"{label}: a given scan model needs direction = 'south' or 'north'")
-            model = ScanModel(np.radians(entry["scanner_angle_span_deg"]), float(entry["subtrack_pixel"]),
-                              np.radians(entry["orbital_angle_first_deg"]), np.radians(entry["orbital_angle_span_deg"]),
-                              np.radians(entry["ascending_node_deg"]), orbit, direction, data.shape[1], data.shape[0])
-        else:
-            raise SeaiceError(f"{label}: give either control = 'file.csv' or the scan model "
-                              f"({', '.join(MODEL_KEYS)})")
-        images.append(SequenceImage(name, time, data, orbit, model, control, direction))
+        image = _read_image(entry, k, path, epoch)
+        if image.name in names:
+            raise SeaiceError(f"{path}: image {image.name!r}: duplicate image name")
+        names.add(image.name)
+        images.append(image)
     if not images:
         raise SeaiceError(f"{path}: no [[image]] entries")
     times = [im.time for im in images]

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import ControlPoints
 from seaice_jax.errors import SeaiceError
-from seaice_jax.io.files import atomic_path
+from seaice_jax.files import atomic_path
+from seaice_jax.sensors.control import ControlPoints
 
 
 @dataclass(frozen=True)
@@ -142,23 +142,27 @@ def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None =
             if point in seen:
                 raise SeaiceError(f"{where}: point {point} already measured on line {seen[point]}")
             seen[point] = line_number
-            has_position = (row.get("lat") or "").strip() != ""
-            if has_position:
-                latitude, longitude = _number(row, "lat", where), _number(row, "lon", where)
-                name = (row.get("name") or "").strip()
-            elif point in by_number:
-                station = by_number[point]
-                latitude, longitude, name = station.latitude_deg, station.longitude_deg, station.name
-            else:
-                raise SeaiceError(f"{where}: point {point} has no lat/lon and is not in the station catalogue")
-            if abs(latitude) > 90.0:
-                raise SeaiceError(f"{where}: point {point} latitude {latitude}° is outside [-90°, 90°]")
-            sigma = _number(row, "sigma_km", where) if (row.get("sigma_km") or "").strip() else None
-            if sigma is not None and sigma <= 0:
-                raise SeaiceError(f"{where}: point {point} sigma_km must be > 0")
-            measurements.append(Measurement(point, name, _number(row, "pixel", where), _number(row, "scan", where),
-                                            latitude, longitude, sigma))
+            measurements.append(_measurement(row, point, where, by_number))
     return measurements
+
+
+def _measurement(row: dict, point: str, where: str, by_number: dict) -> Measurement:
+    """One measurement row: its own lat/lon (and name) or the catalogue station's; latitude within ±90°; σ > 0."""
+    if (row.get("lat") or "").strip() != "":
+        latitude, longitude = _number(row, "lat", where), _number(row, "lon", where)
+        name = (row.get("name") or "").strip()
+    elif point in by_number:
+        station = by_number[point]
+        latitude, longitude, name = station.latitude_deg, station.longitude_deg, station.name
+    else:
+        raise SeaiceError(f"{where}: point {point} has no lat/lon and is not in the station catalogue")
+    if abs(latitude) > 90.0:
+        raise SeaiceError(f"{where}: point {point} latitude {latitude}° is outside [-90°, 90°]")
+    sigma = _number(row, "sigma_km", where) if (row.get("sigma_km") or "").strip() else None
+    if sigma is not None and sigma <= 0:
+        raise SeaiceError(f"{where}: point {point} sigma_km must be > 0")
+    return Measurement(point, name, _number(row, "pixel", where), _number(row, "scan", where), latitude, longitude,
+                       sigma)
 
 
 def control_points(measurements: list[Measurement], default_sigma_km: float = 1.0) -> ControlPoints:

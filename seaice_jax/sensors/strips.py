@@ -2,11 +2,12 @@
 
 A :class:`StripRecord` holds what one strip provides — navigation records, altimeter, time marks, nadir returns,
 the radar's nominal constants — and :class:`Measurements` the image coordinates of points on the strips.
-:func:`rectify` turns measurements into ground points by the radargrammetric method (eqs A1, A2, A5 with filtered
-navigation). Simulated strips also carry their truth (``truth``, ``true_sweep_delay``, ``true_range_scale``).
+:func:`strip_ground_points` turns measurements into ground points by the radargrammetric method (eqs A1, A2, A5
+with filtered navigation). A :class:`Coverage` is one flight over a block: its strips, measurements and control
+points (read from a project, or simulated — the simulator keeps its truth apart).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -14,14 +15,14 @@ import numpy as np
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.range_doppler import ground_point, look_sign
-from seaice_jax.sensors.navigation import NavigationSpline, moving_average
+from seaice_jax.geometry.range_doppler import LookSide, ground_point, look_sign
+from seaice_jax.sensors.navigation import NavigationSpline, fit_navigation, moving_average
 from seaice_jax.sensors.slar import imaging_time, slant_range
 
 
 @dataclass(frozen=True)
 class StripRecord:
-    """What one strip provides, as real data would (plus its truth, for checking).
+    """What one strip provides, as real data would.
 
     Attributes:
         name: e.g. ``"S01"``. start_time, end_time: s.
@@ -29,9 +30,7 @@ class StripRecord:
         record_altitudes: ``(k,)`` altimeter readings, m.
         mark_x, mark_times: ``(n,)`` time marks on the film (mm, s).
         nadir_x, nadir_y: ``(n,)`` image coordinates of nadir returns, mm.
-        sweep_delay, range_scale: the radar's nominal constants. look_side.
-        truth: the true trajectory; true_sweep_delay, true_range_scale; true_navigation_error: ``(k, 2)`` the
-            systematic north/east error of the recorded positions at the record times (simulations only).
+        sweep_delay, range_scale: the radar's nominal constants. look_side: ``"right"`` or ``"left"``.
     """
 
     name: str
@@ -47,11 +46,7 @@ class StripRecord:
     nadir_y: np.ndarray
     sweep_delay: float
     range_scale: float
-    look_side: str
-    truth: object = field(default=None, repr=False)
-    true_sweep_delay: float = float("nan")
-    true_range_scale: float = float("nan")
-    true_navigation_error: np.ndarray | None = field(default=None, repr=False)
+    look_side: LookSide
 
 
 @dataclass(frozen=True)
@@ -68,19 +63,48 @@ class Measurements:
     y: np.ndarray
 
 
+@dataclass(frozen=True)
+class Coverage:
+    """One flight over a block: its strips, the image measurements on them, and the control points.
+
+    Attributes:
+        name: e.g. the date. epoch: s, the flight's time origin (take-off) from the project's.
+        strips: :class:`StripRecord` per strip, in flight order. measurements: point indices into the block's points.
+        control: ``{point index: (x, y, σ)}`` map metres, positions known independently (stations, map points).
+    """
+
+    name: str
+    epoch: float
+    strips: tuple[StripRecord, ...]
+    measurements: Measurements
+    control: dict[int, tuple[float, float, float]]
+
+
 def strip_navigation(strip: StripRecord, filter_window: float | None = 180.0, filter_order: int = 2,
                      filter_weighting: str = "flat") -> NavigationSpline:
-    """The strip's navigation as a trajectory: the records, low-pass filtered (step 2) unless ``filter_window`` is
-    ``None`` (the filter's velocities are its polynomials' derivatives)."""
-    positions, velocities = strip.record_positions, strip.record_velocities
-    if filter_window:
-        positions, velocities = moving_average(strip.record_times, positions, filter_window, filter_order,
-                                               filter_weighting)
-    return NavigationSpline(strip.record_times, positions, velocities)
+    """The strip's navigation as a trajectory whose velocity is the derivative of its position (step 2).
+
+    With ``filter_window`` (s), the recorded positions and the recorded velocities are each low-pass filtered by
+    the moving polynomial of source 002 (:func:`~seaice_jax.sensors.navigation.moving_average`, degree
+    ``filter_order``, ``filter_weighting``), and one cubic spline with knots every ``filter_window / 2`` s is
+    fitted to both (:func:`~seaice_jax.sensors.navigation.fit_navigation`): the velocities give its shape, the
+    positions its level, so the velocity that orients the zero-Doppler plane carries the velocity records' noise
+    (cm/s), not the position records' noise differentiated over a record interval (tenths of m/s, tilting the
+    plane enough to move far-range points tens of metres along track). ``None``: the records as recorded
+    (interpolated by :class:`~seaice_jax.sensors.navigation.NavigationSpline`, no filter).
+    """
+    if not filter_window:
+        return NavigationSpline(strip.record_times, strip.record_positions, strip.record_velocities)
+    positions, _ = moving_average(strip.record_times, strip.record_positions, filter_window, filter_order,
+                                  filter_weighting)
+    velocities, _ = moving_average(strip.record_times, strip.record_velocities, filter_window, filter_order,
+                                   filter_weighting)
+    return fit_navigation(strip.record_times, positions, velocities, filter_window / 2).trajectory
 
 
-def rectify(strips, measurements: Measurements, filter_window: float | None = 180.0, filter_order: int = 2,
-            sweep_delay=None, range_scale=None, radius=MEAN_RADIUS, filter_weighting: str = "flat"):
+def strip_ground_points(strips, measurements: Measurements, filter_window: float | None = 180.0,
+                        filter_order: int = 2, sweep_delay=None, range_scale=None, radius=MEAN_RADIUS,
+                        filter_weighting: str = "flat"):
     """The radargrammetric method of source 000 (steps 1-3): image measurements -> ground points ``(m, 3)``.
 
     Time by eq. A1 from the time marks, slant range by eq. A2 (with per-strip ``sweep_delay``/``range_scale`` if

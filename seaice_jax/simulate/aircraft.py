@@ -5,8 +5,10 @@ Each strip's truth is a great-circle flight at constant altitude (:class:`Circul
 instruments record is the truth corrupted by the error sources the sources describe, each switchable:
 
 * inertial navigation: a drift growing ``drift_rate`` per hour of flight, a Schuler oscillation (84.4 min) of
-  ``schuler_amplitude``, a random perturbation at each turn, and 10-s recording noise — applied as north/east
-  offsets of the recorded positions (velocities get the offsets' time derivative);
+  ``schuler_amplitude``, a random perturbation at each turn — applied as north/east offsets of the recorded
+  positions, whose time derivative the recorded velocities carry — and white noise on each 10-s record:
+  ``record_noise`` on the positions, ``velocity_noise`` on the velocities (north/east; an INS velocity is far
+  more precise than its position: a few cm/s against tens of metres);
 * the altimeter: Gaussian noise;
 * the radar: true sweep delay and range scale differ from the nominal ones; time marks jitter;
 * image measurements: Gaussian noise in x and in the slant-range coordinate y; the ground-range error it causes
@@ -17,7 +19,7 @@ on the true trajectory gives x (film along-track coordinate, ``film_rate`` mm/s 
 slant range gives y = r/f − c (mm).
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
@@ -25,12 +27,10 @@ import numpy as np
 
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_east, unit_vector
 from seaice_jax.geometry.projections import TangentPlane
-from seaice_jax.geometry.range_doppler import imaging_time_and_range, look_sign
+from seaice_jax.geometry.range_doppler import LookSide, imaging_time_and_range, look_sign
 from seaice_jax.geometry.trajectory import CircularTrajectory
 from seaice_jax.sensors.navigation import SCHULER_PERIOD
-from seaice_jax.sensors.strips import Measurements, StripRecord, image_to_ground
-
-_DEG = np.pi / 180.0
+from seaice_jax.sensors.strips import Coverage, Measurements, StripRecord, image_to_ground
 
 
 def _north_east(position):
@@ -50,11 +50,12 @@ class ErrorModel:
     range_scale_error: float = 0.005  # relative
     time_mark_jitter: float = 0.05  # s
     image_noise: float = 0.04  # mm, in x and in y (10 m of slant range at 250 m/mm)
+    velocity_noise: float = 0.03  # m/s, white, on each recorded north/east velocity
 
     @classmethod
     def none(cls):
         """No errors at all (for checking the geometry end to end)."""
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(**{name: 0.0 for name in cls.__dataclass_fields__})
 
     def only(self, *names):
         """This model with every error switched off except ``names``."""
@@ -86,7 +87,7 @@ class FlightPlan:
     heading: float = 90.0
     near_angle: float = 5.0
     far_angle: float = 55.0
-    look_side: str = "right"
+    look_side: LookSide = "right"
     overlap: float = 0.2
     record_interval: float = 10.0
     film_rate: float = 0.5
@@ -96,11 +97,11 @@ class FlightPlan:
 
     @property
     def near_range(self):
-        return self.altitude / np.cos(self.near_angle * _DEG)
+        return self.altitude / np.cos(np.radians(self.near_angle))
 
     @property
     def far_range(self):
-        return self.altitude / np.cos(self.far_angle * _DEG)
+        return self.altitude / np.cos(np.radians(self.far_angle))
 
 
 def navigation_error(times, errors: ErrorModel, turn_offset, drift_direction=0.6435, schuler_phase=0.0):
@@ -123,25 +124,51 @@ def navigation_error(times, errors: ErrorModel, turn_offset, drift_direction=0.6
     return error, rate
 
 
-def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generator, take_off_time: float = 0.0):
+@dataclass(frozen=True)
+class StripTruth:
+    """What a simulated strip's records do not say.
+
+    Attributes:
+        trajectory: the true flight. sweep_delay, range_scale: the true radar constants (mm, m/mm).
+        navigation_error: ``(k, 2)`` m, the systematic north/east error of the recorded positions at the record
+            times.
+    """
+
+    trajectory: CircularTrajectory
+    sweep_delay: float
+    range_scale: float
+    navigation_error: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class CoverageTruth:
+    """What a simulated coverage's records do not say: ``positions`` ``(n, 2)`` true map positions of all features
+    at this flight, and the truth of each strip."""
+
+    positions: np.ndarray
+    strips: tuple[StripTruth, ...]
+
+
+def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generator,
+                    take_off_time: float = 0.0) -> tuple[list[StripRecord], list[StripTruth]]:
     """Strips of a block (navigation, altimeter, time marks, radar constants) flown ``take_off_time`` s after
-    take-off; returns a list of :class:`StripRecord`."""
-    swath_near = plan.altitude * np.tan(plan.near_angle * _DEG)
-    swath_far = plan.altitude * np.tan(plan.far_angle * _DEG)
+    take-off: what was recorded (:class:`StripRecord`) and, apart, the truth of each strip."""
+    swath_near = plan.altitude * np.tan(np.radians(plan.near_angle))
+    swath_far = plan.altitude * np.tan(np.radians(plan.far_angle))
     step = (1.0 - plan.overlap) * (swath_far - swath_near)
-    start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
-    heading = plan.heading * _DEG
+    start = unit_vector(np.radians(plan.centre_latitude), np.radians(plan.centre_longitude))
+    heading = np.radians(plan.heading)
     north0, east0 = _north_east(start)
     forward = np.cos(heading) * north0 + np.sin(heading) * east0
     right = np.cross(forward, np.asarray(start))
-    side = 1.0 if plan.look_side == "right" else -1.0
+    side = float(look_sign(plan.look_side))
     strip_starts = take_off_time + np.arange(plan.strips) * (plan.strip_duration + plan.turn_duration)
     turn_offsets = np.zeros((plan.strips, 2))
     turn_offsets[1:] = np.cumsum(rng.normal(0.0, errors.turn_perturbation, (plan.strips - 1, 2)), axis=0)
     drift_direction, schuler_phase = rng.uniform(0.0, 2 * np.pi, 2)  # each flight's INS errs its own way
     true_sweep = plan.sweep_delay + errors.sweep_delay_error
     true_scale = plan.range_scale * (1.0 + errors.range_scale_error)
-    records = []
+    records, truths = [], []
     for k in range(plan.strips):
         direction = 1.0 if k % 2 == 0 else -1.0
         # across track (to the look side of strip 0), swath k spans [near + k step, far + k step]: a strip flown
@@ -165,14 +192,17 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         offset = error + noise
         # the error is an offset along the north and east axes *at the recorded position* (a few fixed-point
         # steps, each gaining a factor |offset|/R), so the truth is exactly the record minus the offset there;
-        # the recorded velocity is the time derivative of the recorded position, turning axes included
+        # the recorded velocity is the time derivative of the recorded position without its noise (turning axes
+        # included), plus its own white noise
         recorded_position = true_position
         for _ in range(4):
             north, east = _north_east(recorded_position)
             recorded_position = true_position + offset[:, :1] * north + offset[:, 1:] * east
         turning = jax.jvp(north_east, (jnp.asarray(recorded_position),), (jnp.asarray(true_velocity),))[1]
         north_rate, east_rate = (np.asarray(a) for a in turning)
-        recorded_velocity = (true_velocity + rate[:, :1] * north + rate[:, 1:] * east + error[:, :1] * north_rate
+        velocity_noise = rng.normal(0.0, errors.velocity_noise, (t.size, 2))
+        recorded_velocity = (true_velocity + (rate[:, :1] + velocity_noise[:, :1]) * north
+                             + (rate[:, 1:] + velocity_noise[:, 1:]) * east + error[:, :1] * north_rate
                              + error[:, 1:] * east_rate)
         altitudes = plan.altitude + rng.normal(0.0, errors.altimeter_noise, t.size)
         mark_times = np.arange(strip_starts[k], strip_starts[k] + plan.strip_duration + 1e-9,
@@ -185,20 +215,22 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
         records.append(StripRecord(
             f"S{k + 1:02d}", strip_starts[k], strip_starts[k] + plan.strip_duration, t, recorded_position,
             recorded_velocity, altitudes, mark_x, mark_times, nadir_x, nadir_y, plan.sweep_delay, plan.range_scale,
-            plan.look_side, truth, true_sweep, true_scale, error))
-    return records
+            plan.look_side))
+        truths.append(StripTruth(truth, true_sweep, true_scale, error))
+    return records, truths
 
 
-def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> Measurements:
-    """Measure ground ``points`` ``(n, 3)`` on every strip whose swath and time span contain them."""
+def image_points(points, strips, truths, plan: FlightPlan, errors: ErrorModel, rng) -> Measurements:
+    """Measure ground ``points`` ``(n, 3)`` on every strip (``truths``: their :class:`StripTruth`) whose swath and
+    time span contain them."""
     rows = []
-    for j, strip in enumerate(strips):
+    for j, (strip, truth) in enumerate(zip(strips, truths, strict=True)):
         times, ranges = (np.asarray(a) for a in imaging_time_and_range(
-            points, strip.truth, strip.start_time - 120.0, strip.end_time + 120.0, grid_points=65))
-        position, velocity = (np.asarray(a) for a in strip.truth(times))
+            points, truth.trajectory, strip.start_time - 120.0, strip.end_time + 120.0, grid_points=65))
+        position, velocity = (np.asarray(a) for a in truth.trajectory(times))
         offset = np.asarray(points) - position
         right = np.cross(velocity, position)
-        on_side = np.sign(np.sum(offset * right, axis=1)) == (1.0 if strip.look_side == "right" else -1.0)
+        on_side = np.sign(np.sum(offset * right, axis=1)) == float(look_sign(strip.look_side))
         inside = ((times >= strip.start_time) & (times <= strip.end_time) & (ranges >= plan.near_range)
                   & (ranges <= plan.far_range) & on_side)
         for i in np.nonzero(inside)[0]:
@@ -206,28 +238,10 @@ def image_points(points, strips, plan: FlightPlan, errors: ErrorModel, rng) -> M
             # grows as 1/sin θ toward near range by the geometry itself. The film moves uniformly; the time marks
             # on it carry their own jitter.
             x = plan.film_rate * (times[i] - strip.start_time) + rng.normal(0.0, errors.image_noise)
-            y = ranges[i] / strip.true_range_scale - strip.true_sweep_delay + rng.normal(0.0, errors.image_noise)
+            y = ranges[i] / truth.range_scale - truth.sweep_delay + rng.normal(0.0, errors.image_noise)
             rows.append((i, j, x, y))
     rows = np.array(rows, float).reshape(-1, 4)
     return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
-
-
-@dataclass(frozen=True)
-class Coverage:
-    """One flight over the block: its strips and the image measurements of the features on them.
-
-    Attributes:
-        name: e.g. the date. epoch: s of the flight's take-off (from the scenario's time origin).
-        strips, measurements: as recorded. truth: ``(n, 2)`` true map positions of all features at this flight.
-        control: ``{feature index: (x, y, σ)}`` map positions known independently (stations, map points).
-    """
-
-    name: str
-    epoch: float
-    strips: list
-    measurements: Measurements
-    truth: np.ndarray
-    control: dict
 
 
 @dataclass(frozen=True)
@@ -236,7 +250,8 @@ class Scenario:
 
     Attributes:
         name: ``"aidjex"`` or ``"prudhoe"``. plane: the tangent-plane map projection. plan, errors: as flown.
-        kinds: ``(n,)`` per feature: ``"ice"``, ``"station"`` or ``"land"``. coverages: in time order.
+        kinds: ``(n,)`` per feature: ``"ice"``, ``"station"`` or ``"land"``. coverages: in time order, as
+            recorded. truth: per coverage, what the records do not say.
         floe: ``(n,)`` the floe each feature lies on (``None`` on land). floe_rotation: ``(floes,)`` each floe's
             own rotation between the coverages, radians counter-clockwise in the map.
     """
@@ -246,9 +261,16 @@ class Scenario:
     plan: FlightPlan
     errors: ErrorModel
     kinds: np.ndarray
-    coverages: tuple
+    coverages: tuple[Coverage, ...]
+    truth: tuple[CoverageTruth, ...]
     floe: np.ndarray | None = None
     floe_rotation: np.ndarray | None = None
+
+
+def _known_position(position, sigma: float, rng) -> tuple[float, float, float]:
+    """A control point: ``position`` ``(2,)`` m with an error of σ ``sigma`` m per coordinate, and that σ."""
+    x, y = position + rng.normal(0.0, sigma, 2)
+    return float(x), float(y), sigma
 
 
 def _to_ground(plane, xy):
@@ -258,12 +280,12 @@ def _to_ground(plane, xy):
 
 def _block_plane(plan: FlightPlan):
     """Tangent plane at the middle of the block flown by ``plan`` (flight lines step to the look side)."""
-    start = unit_vector(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)
+    start = unit_vector(np.radians(plan.centre_latitude), np.radians(plan.centre_longitude))
     north, east = _north_east(start)
-    forward = np.cos(plan.heading * _DEG) * north + np.sin(plan.heading * _DEG) * east
+    forward = np.cos(np.radians(plan.heading)) * north + np.sin(np.radians(plan.heading)) * east
     right = np.cross(forward, np.asarray(start))
-    side = 1.0 if plan.look_side == "right" else -1.0
-    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    side = float(look_sign(plan.look_side))
+    width = plan.altitude * (np.tan(np.radians(plan.far_angle)) - np.tan(np.radians(plan.near_angle)))
     across = side * ((plan.strips - 1) * (1 - plan.overlap) * width + width) / 2
     middle = np.asarray(start) + (plan.speed * plan.strip_duration / 2 * forward + across * right) / MEAN_RADIUS
     lat, lon = (float(a) for a in latitude_longitude(middle))
@@ -293,11 +315,11 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
     rng = np.random.default_rng(seed)
     plane = _block_plane(plan)
     half_along = plan.speed * plan.strip_duration / 2
-    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    width = plan.altitude * (np.tan(np.radians(plan.far_angle)) - np.tan(np.radians(plan.near_angle)))
     half_across = ((plan.strips - 1) * (1 - plan.overlap) * width + width) / 2
-    heading = plan.heading * _DEG
+    heading = np.radians(plan.heading)
     along, across = np.array([np.sin(heading), np.cos(heading)]), np.array([np.cos(heading), -np.sin(heading)])
-    side = 1.0 if plan.look_side == "right" else -1.0
+    side = float(look_sign(plan.look_side))
     local = np.stack([rng.uniform(-0.95, 0.95, features) * half_along,
                       rng.uniform(-0.95, 0.95, features) * half_across], 1)
     if not 0 <= stations <= len(_STATIONS):
@@ -311,23 +333,25 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
     centres = np.stack([rng.uniform(-1, 1, floe_count) * half_along, rng.uniform(-1, 1, floe_count) * half_across], 1)
     centres = centres[:, :1] * along + side * centres[:, 1:] * across
     floe = np.argmin(np.linalg.norm(first[:, None, :] - centres[None], axis=2), axis=1)
-    turn = rng.normal(0.0, floe_rotation * _DEG, floe_count)
+    turn = rng.normal(0.0, np.radians(floe_rotation), floe_count)
     moved = first @ matrix.T + shift
     moved_centres = centres @ matrix.T + shift
     cos, sin = np.cos(turn)[floe], np.sin(turn)[floe]
     arm = moved - moved_centres[floe]
     second = (moved_centres[floe] + np.stack([cos * arm[:, 0] - sin * arm[:, 1], sin * arm[:, 0] + cos * arm[:, 1]], 1)
               + rng.normal(0.0, floe_shift, (floe_count, 2))[floe])
-    start = np.array([float(a) for a in plane.forward(plan.centre_latitude * _DEG, plan.centre_longitude * _DEG)])
-    coverages = []
+    start = np.array([float(a) for a in plane.forward(np.radians(plan.centre_latitude),
+                                                      np.radians(plan.centre_longitude))])
+    coverages, truth = [], []
     for k, (positions, name) in enumerate(((first, "day 0"), (second, f"day {days:g}"))):
         lat, lon = plane.inverse(*(start + (shift if k else 0.0)))  # the second flight follows the ice
         flown = replace(plan, centre_latitude=float(np.degrees(lat)), centre_longitude=float(np.degrees(lon)))
-        strips = simulate_flight(flown, errors, rng, take_off_time=3600.0)
-        measurements = image_points(_to_ground(plane, positions), strips, flown, errors, rng)
-        control = {i: (*(positions[i] + rng.normal(0.0, station_sigma, 2)), station_sigma) for i in range(stations)}
-        coverages.append(Coverage(name, k * days * 86400.0, strips, measurements, positions, control))
-    return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages), floe, turn)
+        strips, strip_truth = simulate_flight(flown, errors, rng, take_off_time=3600.0)
+        measurements = image_points(_to_ground(plane, positions), strips, strip_truth, flown, errors, rng)
+        control = {i: _known_position(positions[i], station_sigma, rng) for i in range(stations)}
+        coverages.append(Coverage(name, k * days * 86400.0, tuple(strips), measurements, control))
+        truth.append(CoverageTruth(positions, tuple(strip_truth)))
+    return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages), tuple(truth), floe, turn)
 
 
 def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_points: int = 20,
@@ -340,36 +364,39 @@ def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_po
                       heading=0.0)
     plane = _block_plane(plan)
     half_along = plan.speed * plan.strip_duration / 2
-    width = plan.altitude * (np.tan(plan.far_angle * _DEG) - np.tan(plan.near_angle * _DEG))
+    width = plan.altitude * (np.tan(np.radians(plan.far_angle)) - np.tan(np.radians(plan.near_angle)))
     count = control_points + 60
     local = np.stack([rng.uniform(-0.9, 0.9, count) * half_along, rng.uniform(-0.45, 0.45, count) * width], 1)
-    side = 1.0 if plan.look_side == "right" else -1.0
+    side = float(look_sign(plan.look_side))
     positions = np.stack([side * local[:, 1], local[:, 0]], 1)  # heading north: along = y, across = x
     kinds = np.array(["land"] * count)
-    coverages = []
+    coverages, truth = [], []
     for day in range(2):
-        strips = simulate_flight(plan, errors, rng, take_off_time=hours_after_take_off * 3600.0)
-        measurements = image_points(_to_ground(plane, positions), strips, plan, errors, rng)
-        control = {i: (*(positions[i] + rng.normal(0.0, map_sigma, 2)), map_sigma) for i in range(control_points)}
-        coverages.append(Coverage(f"day {5 * day}", day * 5 * 86400.0, strips, measurements, positions, control))
-    return Scenario("prudhoe", plane, plan, errors, kinds, tuple(coverages))
+        strips, strip_truth = simulate_flight(plan, errors, rng, take_off_time=hours_after_take_off * 3600.0)
+        measurements = image_points(_to_ground(plane, positions), strips, strip_truth, plan, errors, rng)
+        control = {i: _known_position(positions[i], map_sigma, rng) for i in range(control_points)}
+        coverages.append(Coverage(f"day {5 * day}", day * 5 * 86400.0, tuple(strips), measurements, control))
+        truth.append(CoverageTruth(positions, tuple(strip_truth)))
+    return Scenario("prudhoe", plane, plan, errors, kinds, tuple(coverages), tuple(truth))
 
 
-def render_strip(scene, strip: StripRecord, pixel_size: float = 0.05, radius: float = MEAN_RADIUS):
+def render_strip(scene, strip: StripRecord, truth: StripTruth, pixel_size: float = 0.05,
+                 radius: float = MEAN_RADIUS):
     """The radar image of ``scene`` (:class:`~seaice_jax.simulate.satellite.IceScene`, at time 0) on ``strip``'s
     film: a :class:`~seaice_jax.imagery.remap.StripRaster` of ``pixel_size`` mm from the first to the last time
     mark and from the nearest to the farthest range of the swath, each pixel the brightness of its ground point on
-    the true trajectory with the true radar constants (NaN where the range is shorter than the flying height)."""
+    the true trajectory with the true radar constants (``truth``; NaN where the range is shorter than the flying
+    height)."""
     from seaice_jax.imagery.remap import StripRaster
 
-    c, f = strip.true_sweep_delay, strip.true_range_scale
+    c, f = truth.sweep_delay, truth.range_scale
     altitude = float(np.median(strip.record_altitudes))
     y_near, y_far = altitude / f - c, 4.0 * altitude / f - c
     x = np.arange(strip.mark_x[0], strip.mark_x[-1], pixel_size)
     y = np.arange(y_near, y_far, pixel_size)
     xx, yy = np.meshgrid(x, y, indexing="ij")
-    ground = image_to_ground(strip.truth, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times), jnp.asarray(xx),
-                             jnp.asarray(yy), c, f, look_sign(strip.look_side), radius)
+    ground = image_to_ground(truth.trajectory, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
+                             jnp.asarray(xx), jnp.asarray(yy), c, f, look_sign(strip.look_side), radius)
     lat, lon = latitude_longitude(ground)
     xy = jnp.stack(scene.projection.forward(lat, lon), axis=-1)
-    return StripRaster(np.asarray(scene.brightness(xy, 0.0)), x[0], y[0], pixel_size)
+    return StripRaster(jnp.asarray(scene.brightness(xy, 0.0)), x[0], y[0], pixel_size)

@@ -9,15 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from seaice_jax.adjust.multi_image import ImageObservations
-from seaice_jax.adjust.orbit_fit import ControlPoints
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.scan import ScanModel, satellite_orbit
+from seaice_jax.geometry.projections import Projection
+from seaice_jax.geometry.scan import Direction, ScanModel, satellite_orbit
+from seaice_jax.sensors.control import ControlPoints, ImageObservations
 
-_DEG = np.pi / 180.0
 
-
-def noaa_image(direction: str = "south", altitude: float = 0.0, earth_day=None) -> ScanModel:
+def noaa_image(direction: Direction = "south", altitude: float = 0.0, earth_day=None) -> ScanModel:
     """A NOAA-7-like 512 x 512 blow-up image over Baffin Bay / Lancaster Sound (like source 001's).
 
     Southbound: orbital angle 99° to 104.6°, node 66°; northbound: the mirrored geometry (η from 81° down to
@@ -26,8 +24,8 @@ def noaa_image(direction: str = "south", altitude: float = 0.0, earth_day=None) 
     options = {} if earth_day is None else {"earth_day": earth_day}
     orbit = satellite_orbit("NOAA-7", altitude=altitude, **options)
     if direction == "south":
-        return ScanModel(7.0 * _DEG, 110.0, 99.0 * _DEG, 5.6 * _DEG, 66.0 * _DEG, orbit, "south")
-    return ScanModel(7.0 * _DEG, 400.0, 81.0 * _DEG, 5.6 * _DEG, -126.0 * _DEG, orbit, "north")
+        return ScanModel(np.radians(7.0), 110.0, np.radians(99.0), np.radians(5.6), np.radians(66.0), orbit, "south")
+    return ScanModel(np.radians(7.0), 400.0, np.radians(81.0), np.radians(5.6), np.radians(-126.0), orbit, "north")
 
 
 def simulate_control_points(model: ScanModel, count: int, rng: np.random.Generator, sigma_m: float = 1000.0,
@@ -67,7 +65,7 @@ def overlapping_pair(rng: np.random.Generator, primary_first: int = 6, primary_s
     """
     first = noaa_image("south")
     second = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), first,
-                         replace=(first.ascending_node + 2.0 * _DEG, first.orbital_angle_first - 0.8 * _DEG))
+                         replace=(first.ascending_node + np.radians(2.0), first.orbital_angle_first - np.radians(0.8)))
     primary_a, _, _ = simulate_control_points(first, primary_first, rng, sigma_m)
     primary_b, _, _ = simulate_control_points(second, primary_second, rng, sigma_m)
     pixel = rng.uniform(150.0, 400.0, secondary)
@@ -103,6 +101,19 @@ def _field(waves, xi):
     return jnp.cos(angle + jnp.broadcast_to(phases, angle.shape)) @ amplitudes
 
 
+def _relief_octaves(rng, shortest, octaves=4, count=24):
+    """Wave sets of :func:`_relief`: ``octaves`` bands of ``count`` waves, wavelengths ``shortest`` · [2^o, 2^(o+1)]
+    m."""
+    return tuple(_waves(rng, count, shortest * 2.0**o, shortest * 2.0 ** (o + 1)) for o in range(octaves))
+
+
+def _relief(octaves, xi):
+    """Ridged multi-octave noise at ``xi (..., 2)`` m: the mean over octaves of 0.8 − |f_o| (f_o a unit-RMS
+    field of one octave, E|f_o| ≈ 0.8): sharp crests and valley lines at every scale, as eroded terrain shows in
+    the shading of an AVHRR image; mean ≈ 0, RMS ≈ 0.6 / √octaves."""
+    return sum(0.8 - jnp.abs(_field(waves, xi)) for waves in octaves) / len(octaves)
+
+
 class IceScene(eqx.Module):
     """The ground truth of a region: land behind a meandering coastline, a band of fast ice, pack ice moving with
     an affine velocity field, all as brightness (0-1) in a local map projection.
@@ -119,7 +130,7 @@ class IceScene(eqx.Module):
         velocity: ``(2,)`` m/s at the centre (map x, y). velocity_gradient: ``(2, 2)`` 1/s, ∂(u, v)/∂(x, y).
     """
 
-    projection: eqx.Module
+    projection: Projection
     centre: Float[Array, " 2"]
     coast_normal: Float[Array, " 2"]
     coast_distance: Float[Array, ""]
@@ -130,6 +141,7 @@ class IceScene(eqx.Module):
     detail_waves: tuple
     land_waves: tuple
     coast_waves: tuple
+    relief_waves: tuple
 
     def displacement(self, xy, time):
         """Displacement (m) by ``time`` s of the pack ice that is at ``xy (..., 2)`` m at time 0 (zero on land
@@ -163,7 +175,7 @@ class IceScene(eqx.Module):
         material = self.material_position(xy, time)
         floes = jax.nn.sigmoid((_field(self.ice_waves, material) - 0.3) / 0.12)
         pack = 0.12 + 0.68 * floes + 0.06 * _field(self.detail_waves, material)
-        land = 0.5 + 0.12 * _field(self.land_waves, xy)
+        land = 0.5 + 0.06 * _field(self.land_waves, xy) + 0.3 * _relief(self.relief_waves, xy)
         fast = 0.86 + 0.03 * _field(self.detail_waves, xy)
         offset = self.coast_offset(xy)
         on_land = jax.nn.sigmoid(offset / 500.0)
@@ -182,6 +194,10 @@ def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity
               velocity_gradient=((2e-7, 1e-7), (-1e-7, -1e-7)), feature_size=12_000.0,
               projection=None) -> IceScene:
     """A Lancaster-Sound-like scene: land to the north, 40 km of fast ice, pack ice moving ~6 km/day.
+
+    The land has relief texture (:func:`_relief`, wavelengths feature_size/2 to 8 feature_size, static, drawn from
+    a generator spawned from ``rng``, so the other draws of ``rng`` do not change with it): what image matching
+    between passes (tie points) and control-point identification rely on.
 
     Args:
         latitude, longitude: degrees of the centre. velocity: m/s (map x, y) at the centre.
@@ -202,7 +218,8 @@ def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity
                     jnp.asarray(velocity, float), jnp.asarray(velocity_gradient, float),
                     _waves(rng, 40, 2 * feature_size, 12 * feature_size), _waves(rng, 20, feature_size,
                                                                                  3 * feature_size),
-                    _waves(rng, 30, feature_size, 10 * feature_size), coast_waves)
+                    _waves(rng, 30, feature_size, 10 * feature_size), coast_waves,
+                    _relief_octaves(rng.spawn(1)[0], 0.5 * feature_size))
 
 
 def place_pass(template: ScanModel, latitude, longitude, iterations: int = 8) -> ScanModel:
@@ -214,7 +231,7 @@ def place_pass(template: ScanModel, latitude, longitude, iterations: int = 8) ->
     def misfit(unknowns):
         model = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), template,
                             replace=(unknowns[0], unknowns[1]))
-        lat, lon = model._forward(centre_pixel, centre_scan)
+        lat, lon = model.forward_unchecked(centre_pixel, centre_scan)
         return jnp.array([lat - target[0], jnp.angle(jnp.exp(1j * (lon - target[1])))])
 
     unknowns = jnp.array([template.ascending_node, template.orbital_angle_first])
@@ -224,7 +241,7 @@ def place_pass(template: ScanModel, latitude, longitude, iterations: int = 8) ->
                        replace=(unknowns[0], unknowns[1]))
 
 
-def noaa_pass(direction: str, size: int, latitude, longitude, subtrack_pixel=None) -> ScanModel:
+def noaa_pass(direction: Direction, size: int, latitude, longitude, subtrack_pixel=None) -> ScanModel:
     """A NOAA-7-like ``size`` x ``size`` image (the swath of :func:`noaa_image`, sampled at ``size``) centred on
     ``(latitude, longitude)`` radians; ``subtrack_pixel`` default: the image's middle column."""
     template = noaa_image(direction)
@@ -312,7 +329,7 @@ def render(scene: IceScene, model: ScanModel, time: float, clouds=None, distorti
 
 @eqx.filter_jit
 def _render(scene, model, time, pixel, scan, clouds):
-    latitude, longitude = model._forward(pixel, scan)
+    latitude, longitude = model.forward_unchecked(pixel, scan)
     xy = jnp.stack(scene.projection.forward(latitude, longitude), axis=-1)
     inside = (pixel >= 0.5) & (pixel <= model.n_pixels + 0.5) & (scan >= 0.5) & (scan <= model.n_scans + 0.5)
     return jnp.where(inside, scene.brightness(xy, time, clouds), 0.0)
@@ -361,14 +378,17 @@ def _land_control(scene, model, rng, count, pointing_sigma, control_sigma):
     pixels, scans, lats, lons = [], [], [], []
     while len(pixels) < count:
         pixel, scan = rng.uniform(8, model.n_pixels - 8, 64), rng.uniform(8, model.n_scans - 8, 64)
-        lat, lon = (np.asarray(a) for a in model._forward(pixel, scan))
+        lat, lon = (np.asarray(a) for a in model.forward_unchecked(pixel, scan))
         on_land = np.asarray(scene.coast_offset(jnp.stack(scene.projection.forward(lat, lon), -1))) > 5000.0
         for p, s, a, b in zip(pixel[on_land], scan[on_land], lat[on_land], lon[on_land], strict=True):
             if len(pixels) < count:
-                pixels.append(p), scans.append(s), lats.append(a), lons.append(b)
+                pixels.append(p)
+                scans.append(s)
+                lats.append(a)
+                lons.append(b)
     # the ground σ of each point: map accuracy and pointing (pixels times the ground size of a pixel there)
-    lat_p, lon_p = (np.asarray(a) for a in model._forward(np.array(pixels) + 1.0, np.array(scans)))
-    lat_s, lon_s = (np.asarray(a) for a in model._forward(np.array(pixels), np.array(scans) + 1.0))
+    lat_p, lon_p = (np.asarray(a) for a in model.forward_unchecked(np.array(pixels) + 1.0, np.array(scans)))
+    lat_s, lon_s = (np.asarray(a) for a in model.forward_unchecked(np.array(pixels), np.array(scans) + 1.0))
     lat0, lon0 = np.array(lats), np.array(lons)
     size_p = MEAN_RADIUS * np.hypot(lat_p - lat0, (lon_p - lon0) * np.cos(lat0))
     size_s = MEAN_RADIUS * np.hypot(lat_s - lat0, (lon_s - lon0) * np.cos(lat0))

@@ -11,10 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from seaice_jax.geometry.earth import SOLAR_DAY
+from seaice_jax.geometry.range_doppler import LookSide
 from seaice_jax.geometry.scan import Orbit, ScanModel
 from seaice_jax.geometry.trajectory import CircularTrajectory
-
-_DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -31,7 +30,7 @@ class RadarStrip:
     trajectory: CircularTrajectory
     times: np.ndarray
     slant_ranges: np.ndarray
-    look_side: str
+    look_side: LookSide
 
 
 @dataclass(frozen=True)
@@ -50,7 +49,8 @@ class ReferenceStation:
 
 def demo_radar_strip() -> RadarStrip:
     """The AIDJEX-like radar strip of the demo (10 min, lines every 20 s, ranges 10.5-30 km)."""
-    trajectory = CircularTrajectory.from_heading(75.0 * _DEG, -150.0 * _DEG, 80.0 * _DEG, 10_000.0, 170.0)
+    trajectory = CircularTrajectory.from_heading(np.radians(75.0), np.radians(-150.0), np.radians(80.0), 10_000.0,
+                                                 170.0)
     return RadarStrip(trajectory, np.arange(0.0, 601.0, 20.0), np.linspace(10_500.0, 30_000.0, 14), "right")
 
 
@@ -58,8 +58,9 @@ def figure_3_3_image() -> ScanModel:
     """The scan model printed in source 001, Figure 3-3: subtrack pixel 112, OFFSET 6.9607°, orbital angle
     99.47° + 4.6088°, node 66.65°, altitude 0, period 102.03 min, maximum latitude 81.10°, southbound,
     T_e = 1440 min."""
-    orbit = Orbit.from_max_latitude(81.10 * _DEG, 102.03 * 60.0, 0.0, earth_day=SOLAR_DAY)
-    return ScanModel(6.9607 * _DEG, 112.0, 99.47 * _DEG, 4.6088 * _DEG, 66.65 * _DEG, orbit, "south")
+    orbit = Orbit.from_max_latitude(np.radians(81.10), 102.03 * 60.0, 0.0, earth_day=SOLAR_DAY)
+    return ScanModel(np.radians(6.9607), 112.0, np.radians(99.47), np.radians(4.6088), np.radians(66.65), orbit,
+                     "south")
 
 
 FIGURE_3_3_STATIONS = (

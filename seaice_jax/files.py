@@ -6,10 +6,11 @@ import csv
 import json
 import os
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 @contextlib.contextmanager
@@ -27,7 +28,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             os.unlink(temporary)
 
 
-def write_csv(path: str | os.PathLike, columns: Mapping[str, Sequence], float_format: str = "%.9g") -> Path:
+def write_csv(path: str | os.PathLike, columns: Mapping[str, ArrayLike], float_format: str = "%.9g") -> Path:
     """Write equal-length ``columns`` (name -> values) to a CSV with a header row, atomically.
 
     Raises:

@@ -9,11 +9,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
-from seaice_jax.io.files import atomic_path  # noqa: E402
-
-_DEG = np.pi / 180.0
+from seaice_jax.drift.kinematics import error_ellipses  # noqa: E402
+from seaice_jax.files import atomic_path  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -56,13 +56,13 @@ def _graticule(ax, projection, x_limits, y_limits):
     """Meridians and parallels (1°/5° apart on small maps, 5°/20° on large ones) on projected axes."""
     span_km = max(np.ptp(x_limits), np.ptp(y_limits)) / 1000.0
     lat_step, lon_step = (1.0, 5.0) if span_km < 1500 else (5.0, 20.0)
-    latitude_grid = np.linspace(40.0, 89.9, 400) * _DEG
+    latitude_grid = np.radians(np.linspace(40.0, 89.9, 400))
     for lon in np.arange(-180.0, 180.0, lon_step):
-        x, y = projection.forward(latitude_grid, np.full_like(latitude_grid, lon * _DEG))
+        x, y = projection.forward(latitude_grid, np.full_like(latitude_grid, np.radians(lon)))
         ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
-    longitude_grid = np.linspace(-180.0, 180.0, 1441) * _DEG
+    longitude_grid = np.radians(np.linspace(-180.0, 180.0, 1441))
     for lat in np.arange(40.0, 90.0, lat_step):
-        x, y = projection.forward(np.full_like(longitude_grid, lat * _DEG), longitude_grid)
+        x, y = projection.forward(np.full_like(longitude_grid, np.radians(lat)), longitude_grid)
         ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
 
 
@@ -125,18 +125,6 @@ def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, l
     ax.invert_yaxis()
     ax.set_title(title, fontsize=9)
     return _save(fig, path)
-
-
-def error_ellipses(covariances, confidence: float = 0.95):
-    """Semi-axes ``(n,)``, ``(n,)`` (same units as √covariance) and orientation ``(n,)`` (radians from x toward
-    y, of the major axis) of the ``confidence`` error ellipses of 2 × 2 ``covariances`` ``(n, 2, 2)``."""
-    covariances = np.asarray(covariances, float)
-    scale = np.sqrt(-2.0 * np.log(1.0 - confidence))  # χ² with 2 degrees of freedom
-    values, vectors = np.linalg.eigh(np.nan_to_num(covariances))
-    major, minor = np.sqrt(np.maximum(values[:, 1], 0)) * scale, np.sqrt(np.maximum(values[:, 0], 0)) * scale
-    bad = ~np.isfinite(covariances).all(axis=(1, 2))
-    major[bad] = minor[bad] = np.nan
-    return major, minor, np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1])
 
 
 def plot_vectors(path: str | os.PathLike, positions, vectors, title: str, label: str, background=None,
@@ -223,8 +211,9 @@ def plot_box_averages(path: str | os.PathLike, boxes, title: str, background=Non
         ax.scatter(*np.asarray(background).T / 1000.0, s=2, color="0.75", zorder=0)
     speed = np.hypot(boxes.u, boxes.v)
     reference = float(np.nanmax(speed)) if speed.size else 0.1
-    scale = max(reference, 1e-9) / (0.4 * float(np.nanmin(np.diff(np.unique(boxes.x))) / 1000.0)
-                                    if np.unique(boxes.x).size > 1 else 50.0)  # m/s per km of map
+    columns = np.unique(np.asarray(boxes.x, float))
+    spacing_km = float(np.nanmin(np.diff(columns))) / 1000.0 if columns.size > 1 else 125.0
+    scale = max(reference, 1e-9) / (0.4 * spacing_km)  # m/s per km of map
     x, y = boxes.x / 1000.0, boxes.y / 1000.0
     arrows = ax.quiver(x, y, boxes.u, boxes.v, angles="xy", scale_units="xy", scale=scale, width=0.004, color="C0")
     for k in range(x.size):

@@ -2,10 +2,9 @@
 
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import FREE_PARAMETERS, OrbitFit, check_point_errors
+from seaice_jax.adjust.orbit_fit import OrbitFit, check_point_errors
 from seaice_jax.adjust.quality import global_test
-
-_DEG = 180.0 / np.pi
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 
 
 def _degrees_minutes(value_deg: float) -> str:
@@ -18,12 +17,12 @@ def _degrees_minutes(value_deg: float) -> str:
 def _parameters(fit: OrbitFit) -> dict:
     model = fit.model
     return {
-        "scanner_angle_first_deg": float(model.scanner_angle_first) * _DEG,
-        "scanner_angle_last_deg": float(model.scanner_angle_last) * _DEG,
-        "orbital_angle_first_deg": float(model.orbital_angle_first) * _DEG,
-        "orbital_angle_last_deg": float(model.orbital_angle_last) * _DEG,
+        "scanner_angle_first_deg": float(np.degrees(model.scanner_angle_first)),
+        "scanner_angle_last_deg": float(np.degrees(model.scanner_angle_last)),
+        "orbital_angle_first_deg": float(np.degrees(model.orbital_angle_first)),
+        "orbital_angle_last_deg": float(np.degrees(model.orbital_angle_last)),
         "subtrack_pixel": float(model.subtrack_pixel),
-        "ascending_node_deg": float(model.ascending_node) * _DEG,
+        "ascending_node_deg": float(np.degrees(model.ascending_node)),
         "direction": model.direction,
     }
 
@@ -32,9 +31,13 @@ def _parameter_sigma(fit: OrbitFit) -> dict:
     if fit.adjustment is None:
         return {}
     sigma = fit.adjustment.standard_deviations(a_priori=True)
-    units = {"subtrack_pixel": ("subtrack_pixel", 1.0)}
-    return {units.get(name, (f"{name}_deg", _DEG))[0]: float(sigma[name]) * units.get(name, (None, _DEG))[1]
-            for name in FREE_PARAMETERS}
+    out = {}
+    for name in SCAN_UNKNOWNS:  # the pixel in pixels, the angles in degrees
+        if name == "subtrack_pixel":
+            out[name] = float(sigma[name])
+        else:
+            out[f"{name}_deg"] = float(np.degrees(sigma[name]))
+    return out
 
 
 def orbit_fit_json(fit: OrbitFit, check=None) -> dict:
@@ -96,7 +99,7 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
         f" ASCENDING NODE   {p['ascending_node_deg']:7.2f}",
         f" ALTITUDE         {float(orbit.altitude) / 1000.0:7.2f}",
         f" ORBITAL PERIOD   {float(orbit.period) / 60.0:7.2f}",
-        f" ORB MAX LATITUDE {float(orbit.max_latitude) * _DEG:7.2f}",
+        f" ORB MAX LATITUDE {float(np.degrees(orbit.max_latitude)):7.2f}",
         "",
         f"{'REFERENCE STATION':<28}{'PIXEL':>7}{'SCAN':>7}{'LAT':>10}{'LONG':>11}{'DLAT':>9}{'DLONG':>9}"
         f"{'W-LAT':>7}{'W-LON':>7}  FLAG",
@@ -108,8 +111,8 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
         flag += "W" if station["flagged_w_test"] else ""
         lines.append(
             f"{label}{float(fit.control.pixel[k]):7.0f}{float(fit.control.scan[k]):7.0f}"
-            f"{_degrees_minutes(float(fit.control.latitude[k]) * _DEG):>10}"
-            f"{_degrees_minutes(float(fit.control.longitude[k]) * _DEG):>11}"
+            f"{_degrees_minutes(float(np.degrees(fit.control.latitude[k]))):>10}"
+            f"{_degrees_minutes(float(np.degrees(fit.control.longitude[k]))):>11}"
             f"{station['dlat_arcmin']:9.4f}{station['dlon_arcmin']:9.4f}{w_lat[k]:7.2f}{w_lon[k]:7.2f}  {flag}")
     lines.append(f"{'DEV':>63}{data['dev_lat_arcmin']:9.4f}{data['dev_lon_arcmin']:9.4f}")
     lines += ["", f"RMS GROUND DISTANCE AT THE STATIONS {data['rms_km']:.3f} KM"]
@@ -117,7 +120,9 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
         dof = fit.adjustment.degrees_of_freedom
         if dof > 0:
             _, p_value, accepted = global_test(fit.adjustment.sigma0**2, dof)
-            verdict = "ACCEPTED" if bool(accepted) else "REJECTED: the control points disagree beyond their sigma"
+            verdict = ("ACCEPTED" if bool(accepted) else "REJECTED: the control points disagree beyond their sigma"
+                       if float(fit.adjustment.sigma0) > 1 else "REJECTED: the control points agree better than their "
+                       "sigma says (the sigma are pessimistic)")
             lines.append(f"SIGMA0 {data['sigma0']:.3f} WITH {dof} DEGREES OF FREEDOM, GLOBAL TEST p = "
                          f"{float(p_value):.3f} {verdict}")
         else:

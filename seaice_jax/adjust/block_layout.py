@@ -1,0 +1,211 @@
+"""Host-side layout of a radar block: the unknowns' names and priors, the observation tables, start values.
+
+Everything here runs once per block, in NumPy (with one jitted geometry evaluation per strip); the arrays it
+builds become the residual blocks of :mod:`seaice_jax.adjust.block`.
+"""
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax._shapes import bucket, pad
+from seaice_jax.adjust.navigation_basis import navigation_basis
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import latitude_longitude, north_east
+from seaice_jax.geometry.range_doppler import look_sign
+from seaice_jax.sensors.navigation import error_basis_size
+from seaice_jax.sensors.slar import imaging_time
+from seaice_jax.sensors.strips import image_to_ground, nadir_altitudes, strip_navigation
+
+_COMPONENTS = ("north", "east")
+_REFERENCE_SIGMA = 1e-3
+"""m: prior σ of the first strip's turn offset (none: the flight's own offset is the error there)."""
+
+
+@dataclass
+class BlockLayout:
+    """The host-side layout of a block: unknown names, observation tables, start values."""
+
+    names: list
+    prior_sigma: np.ndarray
+    start_points: np.ndarray
+    point_key: list  # (coverage, point) of each point unknown (coverage −1 for static points)
+    strip_slices: list  # (coverage index, strip index, navigation indices, radar indices, flight span or None)
+    observations: dict
+    nadir: dict
+    control: dict
+    coverage_of: np.ndarray
+    strip_of: np.ndarray
+    point_of: np.ndarray
+    q: int
+
+
+@jax.jit
+def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_scale, sign, plane, radius):
+    """Sensor state, local axes, start map positions and ∂map/∂image at image points ``(n,)`` of one strip."""
+    times, time_per_mm = jax.jvp(lambda v: imaging_time(v, mark_x, mark_times), (x,), (jnp.ones_like(x),))
+    position, velocity = navigation(times)
+    (north, east), (north_rate, east_rate) = jax.jvp(north_east, (position,), (velocity,))
+
+    def to_map(xy):
+        g = image_to_ground(navigation, mark_x, mark_times, xy[0], xy[1], sweep_delay, range_scale, sign, radius)
+        return jnp.stack(plane.forward(*latitude_longitude(g)))
+
+    image = jnp.stack([x, y], axis=1)
+    return (times, time_per_mm, position, velocity, north, east, north_rate, east_rate, jax.vmap(to_map)(image),
+            jax.vmap(jax.jacfwd(to_map))(image))
+
+
+
+def _strip_observations(strip, x, y, options, plane, radius, flight_span):
+    """Per-observation geometry of one strip and the start map positions, with the navigation-error basis
+    (:func:`navigation_basis`)."""
+    navigation = strip_navigation(strip, options.filter_window)
+    n = len(x)
+    size = bucket(n)  # padded, so strips of similar size share one compilation
+    geometry = _strip_geometry(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
+                               jnp.asarray(pad(x, size, x[0])), jnp.asarray(pad(y, size, y[0])),
+                               strip.sweep_delay, strip.range_scale, look_sign(strip.look_side), plane, radius)
+    times, time_per_mm, position, velocity, north, east, north_rate, east_rate, start, jacobian = (
+        np.asarray(a)[:n] for a in geometry)
+    basis, rates = navigation_basis(options.navigation_model, times, (strip.start_time, strip.end_time), flight_span,
+                                    options.knot_spacing)
+    # rows without a ground solution (range errors putting a near-range point inside the flying height) are dropped
+    usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
+    return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
+                north_rate=north_rate, east_rate=east_rate, y=np.asarray(y, float),
+                sweep_delay=np.full(n, strip.sweep_delay), range_scale=np.full(n, strip.range_scale),
+                sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
+
+
+def layout_block(coverages, n_points, plane, options, radius, point_ids=None) -> BlockLayout:
+    """Unknowns, observation tables and start values of a block."""
+    names, prior = [], []
+    strip_slices = []
+    model = options.navigation_model
+    coefficient_names = {"constant": ["offset"], "linear": ["offset", "rate"],
+                         "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
+    offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
+    shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
+    schuler_sigma = options.schuler_prior if options.schuler_prior is not None else shape_sigma
+    shape = {"constant": [], "linear": [shape_sigma], "schuler": [shape_sigma, schuler_sigma, schuler_sigma]}.get(
+        model, [])  # prior σ of the coefficients after the offset (the spline's values all take the offset's)
+    turn_sigma = options.turn_prior if options.turn_prior is not None else np.inf
+    flight = options.navigation_scope == "flight"
+    shared_radar = None
+    q = None
+    for c, coverage in enumerate(coverages):
+        flown = (min(s.start_time for s in coverage.strips), max(s.end_time for s in coverage.strips))
+        if flight and options.take_off_time is not None:
+            if options.take_off_time > flown[0]:
+                raise SeaiceError(f"coverage {coverage.name!r}: take_off_time {options.take_off_time} s is after its "
+                                  f"first strip starts ({flown[0]} s)")
+            flown = (options.take_off_time, flown[1])
+        shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
+        for j, strip in enumerate(coverage.strips):
+            span = flown if flight else (strip.start_time, strip.end_time)
+            size = error_basis_size(model, *span, options.knot_spacing) + 2 * flight
+            if q is not None and size != q:
+                raise SeaiceError(f"coverage {coverage.name!r} strip {strip.name}: the {model} model has {size} "
+                                  f"coefficients here but {q} on the first strip; give all strips the same duration "
+                                  "or choose a knot spacing that divides them equally")
+            q = size
+            label = f"{coverage.name}/{strip.name}"
+            terms = coefficient_names.get(model, [f"spline[{k}]" for k in range(q)])
+            navigation = []
+            for component in _COMPONENTS:
+                if not flight:
+                    navigation += range(len(names), len(names) + q)
+                    names += [f"{label} navigation {component} {term}" for term in terms]
+                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shape
+                    continue
+                if component not in shared:
+                    shared[component] = list(range(len(names), len(names) + q - 2))
+                    names += [f"{coverage.name} navigation {component} {term}" for term in terms]
+                    prior += [offset_sigma] + shape
+                navigation += [len(names), *shared[component], len(names) + 1]
+                names += [f"{label} navigation {component} turn offset", f"{label} navigation {component} deviation"]
+                # the turns' perturbations add up along the flight; the first strip is the flight's reference
+                prior += [turn_sigma * np.sqrt(j) if j else _REFERENCE_SIGMA,
+                          options.deviation_prior if options.deviation_prior is not None else np.inf]
+            if options.radar_constants == "strip" or shared_radar is None:
+                radar_label = label if options.radar_constants == "strip" else "block"
+                radar = [len(names), len(names) + 1]
+                names += [f"{radar_label} sweep delay", f"{radar_label} range scale"]
+                prior += [options.sweep_delay_prior if options.sweep_delay_prior is not None else np.inf,
+                          options.range_scale_prior * strip.range_scale if options.range_scale_prior is not None
+                          else np.inf]
+                shared_radar = radar
+            strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
+    point_key, point_unknown, sums, counts = [], {}, [], []
+    tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
+                              "north_rate", "east_rate", "y",
+                              "sweep_delay", "range_scale", "sign", "time_per_mm")}
+    coverage_of, strip_of, point_of = [], [], []
+    unsolved = set()  # (coverage, point, strip) of measurements without a ground solution at the start
+    nadir = {k: [] for k in ("index", "y", "sweep_delay", "range_scale", "altitude", "coverage", "strip")}
+    slices = iter(strip_slices)
+    for c, coverage in enumerate(coverages):
+        m = coverage.measurements
+        for j, strip in enumerate(coverage.strips):
+            _, _, navigation, radar, flight_span = next(slices)
+            rows = np.nonzero(m.strip == j)[0]
+            if strip.nadir_y.size:
+                nadir["index"].append(np.tile(radar, (strip.nadir_y.size, 1)))
+                nadir["y"].append(strip.nadir_y)
+                nadir["sweep_delay"].append(np.full(strip.nadir_y.size, strip.sweep_delay))
+                nadir["range_scale"].append(np.full(strip.nadir_y.size, strip.range_scale))
+                nadir["altitude"].append(nadir_altitudes(strip))
+                nadir["coverage"].append(np.full(strip.nadir_y.size, c))
+                nadir["strip"].append(np.full(strip.nadir_y.size, j))
+            if rows.size == 0:
+                continue
+            table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius,
+                                                      flight_span)
+            unsolved.update((c, int(p), strip.name) for p in m.point[rows[~valid]])
+            for key in table:
+                tables[key].append(table[key][valid])
+            tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
+            for o, p in zip(rows[valid], m.point[rows[valid]], strict=True):
+                key = (-1 if options.static_points else c, int(p))
+                if key not in point_unknown:
+                    point_unknown[key] = len(point_key)
+                    point_key.append(key)
+                    sums.append(np.zeros(2))
+                    counts.append(0)
+                u = point_unknown[key]
+                tables["point"].append(np.array([u]))
+                sums[u] = sums[u] + start[np.searchsorted(rows, o)]
+                counts[u] += 1
+                coverage_of.append(c)
+                strip_of.append(j)
+                point_of.append(int(p))
+    if not point_key:
+        raise SeaiceError("no image measurement gives a ground point: nothing to adjust")
+    for c, p, strip_name in sorted(unsolved):
+        if p in coverages[c].control and (-1 if options.static_points else c, p) not in point_unknown:
+            name = p if point_ids is None else point_ids[p]
+            raise SeaiceError(f"coverage {coverages[c].name!r}: control point {name} is measured (strip {strip_name}) "
+                              "but has no ground solution with the nominal radar constants and the navigation (a "
+                              "slant range shorter than the flying height?): nothing would hold it; correct or "
+                              "remove its measurement")
+    observations = {k: np.concatenate(v) for k, v in tables.items()}
+    observations["point"] = observations["point"].astype(int)
+    nadir = {k: np.concatenate(v) if v else np.zeros((0, 2) if k == "index" else 0) for k, v in nadir.items()}
+    control = {"point": [], "xy": [], "sigma": []}
+    for c, coverage in enumerate(coverages):
+        for p, (x, y, sigma) in coverage.control.items():
+            key = (-1 if options.static_points else c, int(p))
+            if key in point_unknown:
+                control["point"].append(point_unknown[key])
+                control["xy"].append((x, y))
+                control["sigma"].append(sigma)
+    control = {"point": np.array(control["point"], int), "xy": np.array(control["xy"], float).reshape(-1, 2),
+               "sigma": np.array(control["sigma"], float)}
+    return BlockLayout(names, np.array(prior, float), np.array(sums) / np.array(counts)[:, None], point_key,
+                    strip_slices, observations, nadir, control, np.array(coverage_of), np.array(strip_of),
+                    np.array(point_of), q or 0)
+
+

@@ -1,0 +1,355 @@
+"""The adjustment engine: every least-squares problem of the project is solved here.
+
+A :class:`~seaice_jax.adjust.problem.Problem` (residual blocks over global unknowns and points) goes through
+one nonlinear loop, a damped Gauss-Newton (Levenberg-Marquardt: λ = 0 while steps decrease the square sum,
+raised tenfold on a failed step, lowered tenfold on a good one) in a single ``lax.while_loop``, so under ``vmap``
+each lane stops when it has converged and no lane pays for another's damping. The linear algebra is a backend:
+``"dense"`` (QR of the column-scaled Jacobian and SVD of its triangle, :mod:`.dense`) or ``"schur"`` (points
+eliminated, reduced system by Cholesky, :mod:`.schur`); :func:`choose_backend` picks by the size.
+
+The result, :class:`Adjustment`, carries the estimates, their cofactor (JᵀPJ)⁻¹ and covariance σ̂0²(JᵀPJ)⁻¹,
+σ̂0, the degrees of freedom, and for every observation of every group: the residual v = computed − observed,
+the redundancy number, Baarda's w-statistic, the minimal detectable bias, the estimated error −v/r and the
+largest correlation of its w with another observation's (≈ 1: the two cannot be told apart). The solve is
+compiled once per structure (the block functions, the shapes and the options): a second problem of the same
+shape compiles nothing.
+"""
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, PyTree
+
+from seaice_jax.adjust import dense, schur
+from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, square_sum
+from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
+
+BACKENDS = ("dense", "schur")
+DENSE_LIMIT = 400
+"""Unknowns up to which :func:`choose_backend` takes the dense backend (its cost grows with their cube)."""
+MAX_DAMPING = 1e12
+"""λ (relative to the column-scaled normal matrix, whose largest eigenvalue is ≥ 1) at which a point where no step
+decreases the square sum is taken as the minimum (steps of 1e-12 of the gradient's)."""
+INITIAL_DAMPING = 1e-3
+"""λ after the first failed Gauss-Newton step (relative to the column-scaled normal matrix, diagonal 1)."""
+ROUNDOFF = 1e-16
+"""Relative decrease of the square sum below which a rejected step counts as the end (float64 roundoff)."""
+RUNAWAY = 1e12
+"""An unknown whose a priori σ exceeds this many times its value is undetermined (no digit of it is known)."""
+INSEPARABLE = 0.98
+"""|correlation| of two w-statistics above which a blunder in one cannot be told from a blunder in the other."""
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """How the engine iterates (hashable: part of the compile-cache key).
+
+    Attributes:
+        backend: ``"dense"`` or ``"schur"``.
+        max_steps: iterations of the damped Gauss-Newton loop (failed, damped steps included).
+        relative_tolerance, absolute_tolerance: converged when every |Δ| ≤ rtol·|x| + atol.
+        decrease_tolerance: or when the step is smaller than this many a posteriori standard deviations
+            (ΔᵀNΔ ≤ tol² σ̂0²).
+    """
+
+    backend: str = "dense"
+    max_steps: int = 64
+    relative_tolerance: float = 1e-10
+    absolute_tolerance: float = 1e-10
+    decrease_tolerance: float = 1e-10
+
+
+def choose_backend(problem: Problem) -> str:
+    """``"dense"`` for small problems or problems without points, else ``"schur"``."""
+    has_points = problem.points.shape[0] > 0
+    return "schur" if has_points and problem.unknowns > DENSE_LIMIT else "dense"
+
+
+@dataclass(frozen=True)
+class Flag:
+    """An observation failing the w-test.
+
+    Attributes:
+        group, row, component: where it is (block name, row, component of the row).
+        w: Baarda's w-statistic. estimated_error: −v/r, observation units, the sign of the error (observed minus
+            true). minimal_detectable_bias: observation units.
+        separable: False when another observation's w is correlated with this one's beyond
+            :data:`INSEPARABLE` (e.g. a point seen on two strips only: the data cannot say which one is wrong).
+        confounded_with: that observation ``(group, row, component)``, or ``None``.
+    """
+
+    group: str
+    row: int
+    component: int
+    w: float
+    estimated_error: float
+    minimal_detectable_bias: float
+    separable: bool
+    confounded_with: tuple | None
+
+
+class Adjustment(eqx.Module):
+    """Result of an adjustment (arrays only: it can come out of ``jit`` and ``vmap``).
+
+    Attributes:
+        parameters: the estimates (the engine: ``{"theta": (n,), "points": (P, d)}``; the wrappers give their own
+            pytrees).
+        parameter_names: names of the global unknowns, in the order of ``cofactor``.
+        cofactor: ``(n, n)`` (JᵀPJ)⁻¹ of the global unknowns: their covariance when the a priori σ are right.
+        covariance: ``(n, n)`` σ̂0² · cofactor.
+        point_cofactor: ``(P, d, d)`` the points' cofactor blocks; point_pair_cofactor: ``(R, d, d)`` the
+            requested cross blocks between two points.
+        sigma0: σ̂0 = √(vᵀPv / r) (NaN when r = 0). degrees_of_freedom: r.
+        residuals, redundancy, standardized_residuals, minimal_detectable_bias, estimated_errors: ``{group: …}``
+            per observation (computed − observed residuals in observation units; redundancy numbers; w; MDB;
+            −v/r).
+        w_correlation, w_partner: ``{group: …}`` the largest |correlation| of each w with another observation's
+            and that observation's flat index (−1: none).
+        steps, converged: of the nonlinear loop.
+        undetermined: ``(n,)`` each global unknown's largest |component| in a direction the observations cannot
+            determine at the solution (dense backend: dropped singular values of the column-scaled Jacobian, or a σ
+            above :data:`RUNAWAY` times the value; the Schur backend leaves zeros: its datum check comes
+            first). :meth:`undetermined_parameters` names them.
+        variance_components, robust_weights: ``{group: …}`` when estimated (:func:`variance_components`,
+            :func:`robust_adjustment`), else ``None``.
+    """
+
+    parameters: PyTree
+    parameter_names: tuple = eqx.field(static=True)
+    cofactor: Float[Array, "n n"]
+    covariance: Float[Array, "n n"]
+    sigma0: Float[Array, ""]
+    degrees_of_freedom: int = eqx.field(static=True)
+    residuals: dict
+    redundancy: dict
+    standardized_residuals: dict
+    steps: Array
+    converged: Bool[Array, ""]
+    point_cofactor: Array | None = None
+    point_pair_cofactor: Array | None = None
+    minimal_detectable_bias: dict | None = None
+    estimated_errors: dict | None = None
+    w_correlation: dict | None = None
+    w_partner: dict | None = None
+    undetermined: Array | None = None
+    variance_components: dict | None = None
+    robust_weights: dict | None = None
+
+    def standard_deviations(self, a_priori: bool = False) -> dict[str, Array]:
+        """``{parameter name: σ}`` from ``covariance`` (or from ``cofactor`` with ``a_priori=True``)."""
+        matrix = self.cofactor if a_priori else self.covariance
+        sigma = jnp.sqrt(jnp.diagonal(matrix, axis1=-2, axis2=-1))
+        return {name: sigma[..., k] for k, name in enumerate(self.parameter_names)}
+
+    def undetermined_parameters(self) -> list[str]:
+        """Names of the global unknowns the observations cannot determine at the solution (eager use)."""
+        involvement = np.asarray(self.undetermined)
+        return [name for name, value in zip(self.parameter_names, involvement, strict=True) if value > 0.1]
+
+    def flagged(self, alpha: float = DEFAULT_ALPHA, groups=None) -> list[Flag]:
+        """Observations whose |w| exceeds the critical value at ``alpha``, worst first (eager use)."""
+        limit = float(critical_value(alpha))
+        keys = list(self.standardized_residuals)
+        sizes = [int(np.size(self.standardized_residuals[k])) for k in keys]
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+
+        def locate(flat):
+            g = int(np.searchsorted(offsets, flat, side="right") - 1)
+            shape = np.shape(self.standardized_residuals[keys[g]])
+            row, component = np.unravel_index(flat - offsets[g], shape if len(shape) == 2 else (int(np.prod(shape)), 1))
+            return keys[g], int(row), int(component)
+
+        flags = []
+        for key in keys if groups is None else groups:
+            w = np.asarray(self.standardized_residuals[key])
+            w2 = w.reshape(w.shape[0], -1) if w.ndim else w.reshape(1, 1)
+            tables = [np.asarray(d[key]).reshape(w2.shape) if d is not None else np.full(w2.shape, np.nan)
+                      for d in (self.estimated_errors, self.minimal_detectable_bias, self.w_correlation,
+                                self.w_partner)]
+            for row, component in zip(*np.nonzero(np.abs(w2) > limit), strict=True):
+                correlation, partner = tables[2][row, component], tables[3][row, component]
+                separable = not (np.isfinite(correlation) and correlation > INSEPARABLE)
+                flags.append(Flag(key, int(row), int(component), float(w2[row, component]),
+                                  float(tables[0][row, component]), float(tables[1][row, component]), separable,
+                                  None if separable or partner < 0 else locate(int(partner))))
+        return sorted(flags, key=lambda f: -abs(f.w))
+
+
+def degrees_of_freedom(problem: Problem) -> int:
+    """Real observations − unknowns (points without any real observation are padding, not unknowns)."""
+    observations = 0
+    touched = np.zeros(problem.points.shape[0], bool)
+    for block in problem.blocks.values():
+        real = np.isfinite(np.asarray(block.sigma))
+        observations += int(real.sum())
+        if block.point_index is not None:
+            touched[np.asarray(block.point_index)[real.any(axis=1)]] = True
+    return observations - int(problem.start.shape[0]) - int(touched.sum()) * int(problem.points.shape[1])
+
+
+def _linear_step(problem: Problem, layout, backend: str, theta, points, damping, scale):
+    """The damped step, the square sum, the decrease it predicts, and the decrease the undamped (Gauss-Newton) step
+    predicts (the convergence test)."""
+    linear = linearize_all(problem, theta, points)
+    cost = sum(jnp.sum(lin.e**2) for lin in linear.values())
+    if backend == "dense":
+        residuals, jacobian = dense.assemble(problem, linear)
+        scale = jnp.maximum(scale, dense.column_norms(jacobian))
+        factors = dense.Factors(jacobian, scale)
+        delta = factors.step(residuals, damping)
+        n = theta.shape[0]
+        step_theta, step_points = delta[:n], delta[n:].reshape(points.shape)
+        gauss_newton = factors.gauss_newton_decrease(residuals)
+    else:
+        step_theta, step_points = schur.step(problem, linear, layout, damping)
+        gauss_newton = None
+    gain = predicted_decrease(problem, linear, step_theta, step_points)
+    return step_theta, step_points, cost, gain, gain if gauss_newton is None else gauss_newton, scale
+
+
+def _iterate(problem: Problem, layout, options: EngineOptions, dof):
+    """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton)."""
+
+    def small(step, value):
+        return jnp.all(jnp.abs(step) <= options.relative_tolerance * jnp.abs(value) + options.absolute_tolerance)
+
+    def body(state):
+        theta, points, damping, growth, scale, steps, _, _ = state
+        step_theta, step_points, cost, gain, gauss_newton, scale = _linear_step(
+            problem, layout, options.backend, theta, points, damping, scale)
+        trial = square_sum(problem, theta + step_theta, points + step_points)
+        accept = jnp.isfinite(trial) & (trial < cost)
+        tiny = small(step_theta, theta) & small(step_points, points)
+        sigma0_squared = jnp.maximum(cost / jnp.maximum(dof, 1.0), 1e-300)
+        # the Gauss-Newton step is below the tolerance in a posteriori σ, or the decrease it predicts is at the
+        # roundoff of the square sum itself (a step that small cannot be taken): the minimum
+        flat = gauss_newton <= jnp.maximum(options.decrease_tolerance**2 * sigma0_squared, ROUNDOFF * cost)
+        converged = jnp.isfinite(cost) & (tiny | flat)
+        theta = jnp.where(accept, theta + step_theta, theta)
+        points = jnp.where(accept, points + step_points, points)
+        ratio = (cost - trial) / jnp.maximum(gain, 1e-300)
+        damping = jnp.where(accept, damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
+                            jnp.where(damping == 0, INITIAL_DAMPING, damping * growth))
+        growth = jnp.where(accept, 2.0, 2.0 * growth)
+        # damped to nothing and still no decrease: no direction lowers the square sum beyond its roundoff
+        converged = converged | ((damping > MAX_DAMPING) & jnp.isfinite(cost))
+        return theta, points, damping, growth, scale, steps + 1, converged | ~jnp.isfinite(cost), converged
+
+    def running(state):
+        return ~state[6] & (state[5] < options.max_steps)
+
+    # Moré's scaling: the damping measures the step by the largest column norms seen so far
+    start = (problem.start, problem.points, jnp.zeros(()), jnp.full((), 2.0), jnp.zeros(problem.unknowns),
+             jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
+    theta, points, _, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
+    return theta, points, steps, converged
+
+
+def _statistics(problem: Problem, layout, backend: str, theta, points, cross_points):
+    """Cofactors, hat diagonals and w correlations at the solution."""
+    linear = linearize_all(problem, theta, points)
+    n = theta.shape[0]
+    count, d = points.shape
+    if backend == "dense":
+        residuals, jacobian = dense.assemble(problem, linear)
+        factors = dense.Factors(jacobian)
+        full = factors.cofactor()
+        hat_flat = factors.hat_diagonal()
+        redundancy_flat = 1.0 - hat_flat
+        mask = jnp.concatenate([jnp.isfinite(b.sigma).reshape(-1) for b in problem.blocks.values()])
+        correlation, partner = factors.residual_correlation(jnp.where(mask, redundancy_flat, 0.0))
+        point_full = full[n:, n:].reshape(count, d, count, d)
+        point_cofactor = point_full[jnp.arange(count), :, jnp.arange(count)]
+        cross = point_full[cross_points[:, 0], :, cross_points[:, 1]]
+        hats, correlations, partners, start = {}, {}, {}, 0
+        for name, block in problem.blocks.items():
+            size = block.sigma.size
+            hats[name] = hat_flat[start:start + size].reshape(block.sigma.shape)
+            correlations[name] = correlation[start:start + size].reshape(block.sigma.shape)
+            partners[name] = partner[start:start + size].reshape(block.sigma.shape)
+            start += size
+        # also undetermined: an unknown run off towards infinity, where it hardly changes the residuals any more
+        # (the column-scaled rank cannot see it: scaling restores the column's size)
+        runaway = jnp.sqrt(jnp.diagonal(full)[:n]) > RUNAWAY * jnp.abs(theta)
+        undetermined = jnp.where(runaway & (theta != 0), 1.0, factors.undetermined()[:n])
+        return linear, full[:n, :n], point_cofactor, cross, hats, correlations, partners, undetermined
+    q, couple = schur.cofactors(problem, linear, layout)
+    hats = schur.hat_diagonals(problem, linear, layout, q)
+    redundancy = {k: jnp.where(jnp.isfinite(problem.blocks[k].sigma), 1.0 - h, 0.0) for k, h in hats.items()}
+    top, partner = schur.residual_correlation(couple, layout, q, schur.coupling_redundancy(problem, layout,
+                                                                                           redundancy))
+    correlations, partners, start = {}, {}, 0
+    for name, block in problem.blocks.items():
+        correlations[name] = jnp.zeros(block.sigma.shape)
+        partners[name] = jnp.full(block.sigma.shape, -1)
+        if name in layout.blocks:
+            m, c = block.sigma.shape
+            correlations[name] = top[start:start + m, :c]
+            partners[name] = partner[start:start + m, :c]
+            start += m
+    return linear, q.theta, q.point, q.cross, hats, correlations, partners, jnp.zeros(n)
+
+
+@functools.partial(jax.jit, static_argnames=("options",))
+def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
+    """The compiled solve (the degrees of freedom are traced: problems differing only in them share it); the
+    result's names and static degrees of freedom are set by :func:`solve`."""
+    theta, points, steps, converged = _iterate(problem, layout, options, dof)
+    linear, cofactor, point_cofactor, cross, hats, correlations, partners, undetermined = _statistics(
+        problem, layout, options.backend, theta, points, cross_points)
+    square = sum(jnp.sum(lin.e**2) for lin in linear.values())
+    sigma0_squared = jnp.where(dof > 0, square / jnp.maximum(dof, 1), jnp.nan)
+    out = {k: {} for k in ("v", "r", "w", "mdb", "error")}
+    for name, block in problem.blocks.items():
+        real = jnp.isfinite(block.sigma)
+        sigma = jnp.where(real, block.sigma, 1.0)
+        redundancy = jnp.where(real, 1.0 - hats[name], 0.0)
+        whitened = linear[name].e
+        out["v"][name] = whitened * sigma
+        out["r"][name] = redundancy
+        out["w"][name] = w_test(whitened, redundancy)
+        out["mdb"][name] = jnp.where(real, minimal_detectable_bias(sigma, redundancy), jnp.nan)
+        out["error"][name] = jnp.where(real, estimated_blunder(whitened * sigma, redundancy), jnp.nan)
+    return Adjustment(
+        parameters={"theta": theta, "points": points}, parameter_names=(), cofactor=cofactor,
+        covariance=sigma0_squared * cofactor, sigma0=jnp.sqrt(sigma0_squared), degrees_of_freedom=0,
+        residuals=out["v"], redundancy=out["r"], standardized_residuals=out["w"], steps=steps, converged=converged,
+        point_cofactor=point_cofactor, point_pair_cofactor=cross, minimal_detectable_bias=out["mdb"],
+        estimated_errors=out["error"], w_correlation=correlations, w_partner=partners, undetermined=undetermined)
+
+
+def solve(problem: Problem, options: EngineOptions | None = None, names=(), cross_points=None, layout=None,
+          dof: int | None = None) -> Adjustment:
+    """Adjust ``problem`` (eager or under ``jit``/``vmap`` with ``layout`` and ``dof`` given).
+
+    Args:
+        options: :class:`EngineOptions` (default: dense backend).
+        names: names of the global unknowns (for the result and messages).
+        cross_points: ``(R, 2)`` point pairs whose cross-cofactor blocks are wanted (e.g. a feature's position on
+            two dates, for its drift).
+        layout: the Schur backend's tables (:func:`~seaice_jax.adjust.schur.schur_layout`), built here if
+            ``None`` (that needs concrete point indices: build it outside ``vmap``).
+        dof: degrees of freedom (counted here if ``None``, which needs concrete σ).
+    """
+    options = options or EngineOptions()
+    cross_points = np.zeros((0, 2), int) if cross_points is None else np.asarray(cross_points, int).reshape(-1, 2)
+    if layout is None:
+        layout = schur.schur_layout(problem, cross_points) if options.backend == "schur" else None
+    dof = degrees_of_freedom(problem) if dof is None else int(dof)
+    result = _solve(problem, layout, jnp.asarray(cross_points), options, jnp.asarray(dof, float))
+    fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
+    return Adjustment(**(fields | {"parameter_names": tuple(names), "degrees_of_freedom": dof}))
+
+
+def rescaled(problem: Problem, factors: dict, start: Adjustment | None = None) -> Problem:
+    """``problem`` with each group's σ multiplied by ``factors[group]`` (scalar or per observation), started from
+    ``start``'s estimates."""
+    blocks = {k: eqx.tree_at(lambda b: b.sigma, b, b.sigma * factors.get(k, 1.0)) for k, b in problem.blocks.items()}
+    if start is None:
+        return Problem(blocks, problem.start, problem.points)
+    return Problem(blocks, start.parameters["theta"], start.parameters["points"])

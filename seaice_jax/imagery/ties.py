@@ -1,0 +1,555 @@
+"""Tie points between the overlapping images of a sequence, found automatically on what does not move (land, fast
+ice) by normalised cross-correlation through the images' current scan models (issue 13).
+
+Method:
+
+1. **Candidates**: a lattice of ground points (``spacing`` pixels apart, in the plane tangent to the sphere at the
+   sequence's centre) where the static surface (land and fast ice: a mask or any ``(latitude, longitude) -> bool``)
+   covers the footprint of the patch, and which at least two images see (inverse scan model of the current
+   models) far enough from their edges.
+2. **Reference**: of the images that see a candidate, the one whose patch there has the most contrast (clouds are
+   flat); its template is the ``patch`` x ``patch`` pixels around the nearest pixel centre q (no interpolation); q
+   is the tie's observation in the reference image. A candidate that matches in no other image tries the next
+   reference (an image of unrelated texture has contrast too).
+3. **Matching** in every other image o: the window of o is resampled into the reference's frame through the
+   current models, T(q) = inverse_o(forward_r(q)) (bicubic, ``cv2.remap``), which takes out the rotation and
+   scale between a southbound and a northbound pass; the models' errors leave a shift d of a few pixels (their
+   rotation and scale errors are negligible over a patch). NCC (``cv2.matchTemplate``, TM_CCOEFF_NORMED) over
+   ±``search`` pixels, sub-pixel peak by the quadratic fit of :func:`~seaice_jax.imagery.tracking.quadratic_peak`,
+   quality flags as in tracking (contrast, correlation, peak sharpness, peak at the window's edge) and the
+   normalised median test on d (the models' errors are smooth over an image: a mismatch disagrees with its
+   neighbours). The observation in o is T(q + d): to first order the true correspondent of q, whatever the errors
+   of the models used to resample (they only move the point through which the warp passes).
+4. **Search window** from the models' uncertainty: with their covariances (of the five unknowns), ``n_sigma``
+   times the largest predicted σ of T over the overlap (autodiff Jacobian of T with respect to both images'
+   unknowns), plus one pixel; without, ``search``.
+5. **σ** of each observation (pixel, scan): σ² = ``pointing_sigma``² + ½ C_d, with C_d = 2 (1 − ρ)/N (−H)⁻¹ the
+   match covariance from the peak's correlation ρ and curvature H over the N template pixels (least-squares
+   matching with noise in both images: 1 − ρ ≈ σ_noise²/σ_signal², Σ∇I∇Iᵀ ≈ −N σ_signal² H), carried into each
+   image's axes by the Jacobian of T; half of the match variance goes to each image of the pair, so the difference
+   of the two observations has the match's variance plus 2 ``pointing_sigma``². ``pointing_sigma`` covers what the
+   correlation cannot see (resampling, the changes of texture between passes).
+
+A ground point seen in k images is one tie with k observations (all matched against one reference).
+"""
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax._shapes import pad
+from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import great_circle_distance
+from seaice_jax.geometry.projections import MapGrid, TangentPlane
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
+from seaice_jax.imagery.tracking import (
+    AT_EDGE,
+    FLAT_PEAK,
+    GOOD,
+    LOW_CONTRAST,
+    LOW_CORRELATION,
+    NO_DATA,
+    STATUS,
+    Displacements,
+    TrackingOptions,
+    correlation_peak,
+    median_test,
+    quadratic_peak,
+)
+
+_CHUNK = 1000
+"""Windows per ``cv2.remap`` call (its output must stay below 32767 rows)."""
+_POINTS = 4096
+"""Points per call of the compiled geometry kernels (the last call padded)."""
+
+
+@dataclass(frozen=True)
+class TieOptions:
+    """Choices of :func:`find_ties`.
+
+    Attributes:
+        patch: side of the square template, pixels (odd). spacing: pixels between candidate ground points.
+        search: ± pixels searched when no covariances are given. n_sigma: with covariances, the window covers
+            this many predicted σ of the models' disagreement (plus one pixel), at most ``max_search``.
+        min_correlation, min_sharpness, min_contrast: quality thresholds (as
+            :class:`~seaice_jax.imagery.tracking.TrackingOptions`).
+        median_threshold, neighbours: the normalised median test of the shifts.
+        pointing_sigma: pixels, the σ floor of each observation (module docstring).
+    """
+
+    patch: int = 15
+    spacing: float = 4.0
+    search: int = 6
+    n_sigma: float = 4.0
+    max_search: int = 30
+    min_correlation: float = 0.7
+    min_sharpness: float = 0.05
+    min_contrast: float = 0.03
+    median_threshold: float = 3.0
+    neighbours: int = 8
+    pointing_sigma: float = 0.2
+
+    def __post_init__(self):
+        if self.patch < 5 or self.patch % 2 == 0:
+            raise SeaiceError(f"patch must be an odd number of pixels >= 5, got {self.patch}")
+        if not self.spacing > 0:
+            raise SeaiceError(f"spacing must be > 0 pixels, got {self.spacing}")
+        if self.search < 2 or self.max_search < 2:
+            raise SeaiceError(f"search and max_search must be at least 2 pixels, got {self.search}, "
+                              f"{self.max_search}")
+        if not self.pointing_sigma > 0:
+            raise SeaiceError(f"pointing_sigma must be > 0 pixels, got {self.pointing_sigma}")
+
+
+@dataclass(frozen=True)
+class TiePoints:
+    """Tie observations of a sequence.
+
+    Attributes:
+        image, tie: ``(m,)`` image index and tie id of each observation (ids 0..n_ties−1, shared across images).
+        pixel, scan: ``(m,)`` fractional 1-based image coordinates.
+        sigma_pixel, sigma_scan: ``(m,)`` pixels.
+        correlation: ``(m,)`` peak NCC of the match (NaN for the tie's reference observation).
+        reference: ``(m,)`` True for the observation the others were matched against.
+        latitude, longitude: ``(n_ties,)`` radians, the tie's position by the reference image's current model.
+        candidates: ``{(reference image, other image): (len(STATUS),) counts}`` of every match tried, by
+            :data:`~seaice_jax.imagery.tracking.STATUS` code.
+        search: ``{(reference image, other image): ± pixels searched}``.
+    """
+
+    image: np.ndarray
+    tie: np.ndarray
+    pixel: np.ndarray
+    scan: np.ndarray
+    sigma_pixel: np.ndarray
+    sigma_scan: np.ndarray
+    correlation: np.ndarray
+    reference: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray
+    candidates: dict
+    search: dict
+
+    @property
+    def n_ties(self) -> int:
+        return int(self.latitude.size)
+
+    @property
+    def n_observations(self) -> int:
+        return int(self.image.size)
+
+    def pair_counts(self) -> dict[tuple[int, int], int]:
+        """``{(a, b): ties observed in both}`` for every pair a < b of images sharing a tie."""
+        counts: dict[tuple[int, int], int] = {}
+        order = np.argsort(self.tie, kind="stable")
+        ties, images = self.tie[order], self.image[order]
+        starts = np.r_[0, np.nonzero(np.diff(ties))[0] + 1, ties.size]
+        for begin, end in zip(starts[:-1], starts[1:], strict=True):
+            seen = np.unique(images[begin:end])
+            for x, a in enumerate(seen):
+                for b in seen[x + 1:]:
+                    counts[(int(a), int(b))] = counts.get((int(a), int(b)), 0) + 1
+        return dict(sorted(counts.items()))
+
+
+def grid_mask(grid: MapGrid, mask) -> Callable:
+    """A static-surface function ``(latitude, longitude) -> bool`` from a raster ``mask (n_rows, n_columns)`` of
+    ``grid`` (nearest cell; False off the grid)."""
+    mask = np.asarray(mask, bool)
+    if mask.shape != grid.shape:
+        raise SeaiceError(f"mask shape {mask.shape} differs from the grid's {grid.shape}")
+
+    def static(latitude, longitude):
+        x, y = grid.projection.forward(jnp.asarray(latitude, float), jnp.asarray(longitude, float))
+        row, column = (np.rint(np.asarray(a)) for a in grid.to_pixel(x, y))
+        inside = (row >= 0) & (row < grid.n_rows) & (column >= 0) & (column < grid.n_columns)
+        out = np.zeros(row.shape, bool)
+        out[inside] = mask[row[inside].astype(int), column[inside].astype(int)]
+        return out
+
+    return static
+
+
+def _southbound(model: ScanModel) -> ScanModel:
+    """The same model as a southbound one with a signed orbital-angle span: :class:`ScanModel` uses only
+    sign · span, so forward and inverse are the same functions, and every kernel compiles once whatever the passes'
+    directions."""
+    if model.direction == "south":
+        return model
+    return ScanModel(model.scanner_angle_span, model.subtrack_pixel, model.orbital_angle_first,
+                     -model.orbital_angle_span, model.ascending_node, model.orbit, "south", model.n_pixels,
+                     model.n_scans)
+
+
+def _transfer_points(source: ScanModel, target: ScanModel, pixel, scan):
+    latitude, longitude = source.forward_unchecked(pixel, scan)
+    return target.inverse(latitude, longitude)
+
+
+@eqx.filter_jit
+def _transfer_kernel(source, target, pixel, scan):
+    """T at ``(n,)`` points and its ``(n, 2, 2)`` Jacobian ∂(target pixel, scan)/∂(source pixel, scan)."""
+
+    def one(p, s):
+        def point(q):
+            return jnp.stack(_transfer_points(source, target, q[0], q[1]))
+
+        q = jnp.stack([p, s])
+        return point(q), jax.jacfwd(point)(q)
+
+    values, jacobian = jax.vmap(one)(pixel, scan)
+    return values[:, 0], values[:, 1], jacobian
+
+
+@eqx.filter_jit
+def _inverse_kernel(model, latitude, longitude):
+    return model.inverse(latitude, longitude)
+
+
+@eqx.filter_jit
+def _forward_kernel(model, pixel, scan):
+    return model.forward_unchecked(pixel, scan)
+
+
+@eqx.filter_jit
+def _plane_forward(plane, latitude, longitude):
+    return plane.forward(latitude, longitude)
+
+
+@eqx.filter_jit
+def _plane_inverse(plane, x, y):
+    return plane.inverse(x, y)
+
+
+def _chunked(kernel, modules, *arrays):
+    """``kernel(*modules, *arrays)`` over the arrays flattened, in chunks of :data:`_POINTS` (padded: one
+    compilation per kernel); outputs shaped like the arrays (plus trailing axes), numpy."""
+    modules = tuple(_southbound(m) if isinstance(m, ScanModel) else m for m in modules)
+    arrays = [np.asarray(a, float) for a in arrays]
+    shape = np.broadcast_shapes(*(a.shape for a in arrays))
+    flat = [np.broadcast_to(a, shape).ravel() for a in arrays]
+    parts = []
+    for start in range(0, max(flat[0].size, 1), _POINTS):
+        chunk = [jnp.asarray(pad(a[start:start + _POINTS], _POINTS, 1.0)) for a in flat]
+        parts.append([np.asarray(out) for out in kernel(*modules, *chunk)])
+    return tuple(np.concatenate(outs)[:flat[0].size].reshape(shape + outs[0].shape[1:]) for outs in
+                 zip(*parts, strict=True))
+
+
+def transfer(source: ScanModel, target: ScanModel, pixel, scan):
+    """``(pixel, scan)`` in ``target`` of the ground seen at ``(pixel, scan)`` (numpy, any shape) in ``source``,
+    by the two models."""
+    return _chunked(_transfer_kernel, (source, target), pixel, scan)[:2]
+
+
+@eqx.filter_jit
+def _transfer_sensitivity(source, target, pixel, scan):
+    """``(2, n, 10)`` ∂T/∂(source unknowns, target unknowns) at ``(n,)`` source points."""
+
+    def moved(values):
+        return jnp.stack(_transfer_points(with_scan_unknowns(source, values[:5]),
+                                          with_scan_unknowns(target, values[5:]), pixel, scan))
+
+    return jax.jacfwd(moved)(jnp.concatenate([scan_unknowns(source), scan_unknowns(target)]))
+
+
+def _span_sign(model: ScanModel):
+    """``(5,)`` factors from the unknowns of ``model`` to those of :func:`_southbound` ``(model)``."""
+    factors = np.ones(5)
+    factors[SCAN_UNKNOWNS.index("orbital_angle_span")] = 1.0 if model.direction == "south" else -1.0
+    return factors
+
+
+def _inside(model: ScanModel, pixel, scan, margin):
+    return ((pixel >= 1 + margin) & (pixel <= model.n_pixels - margin) & (scan >= 1 + margin)
+            & (scan <= model.n_scans - margin))
+
+
+def _pair_search(source, target, covariances, options: TieOptions, margin):
+    """± pixels searched from ``source`` into ``target``, or 0 when they do not overlap."""
+    scan, pixel = (a.ravel() for a in np.meshgrid(np.linspace(1, source.n_scans, 9),
+                                                  np.linspace(1, source.n_pixels, 9), indexing="ij"))
+    p, s = transfer(source, target, pixel, scan)
+    overlap = _inside(target, p, s, margin) & np.isfinite(p)
+    if not overlap.any():
+        return 0
+    if covariances is None:
+        return options.search
+    jacobian = np.asarray(_transfer_sensitivity(_southbound(source), _southbound(target), jnp.asarray(pixel),
+                                                jnp.asarray(scan)))[:, overlap]
+    covariance = np.zeros((10, 10))
+    for block, model, matrix in ((slice(0, 5), source, covariances[0]), (slice(5, 10), target, covariances[1])):
+        factors = _span_sign(model)
+        covariance[block, block] = factors[:, None] * matrix * factors[None, :]
+    sigma = np.sqrt(np.max(np.einsum("cnk,kl,cnl->cn", jacobian, covariance, jacobian)))
+    return int(np.clip(np.ceil(options.n_sigma * sigma) + 1, 2, options.max_search))
+
+
+def _pixel_size(model: ScanModel):
+    """m, mean ground size of a pixel and a scan line at the image's centre."""
+    p, s = 0.5 * (1 + model.n_pixels), 0.5 * (1 + model.n_scans)
+    lat, lon = _chunked(_forward_kernel, (model,), [p, p + 1, p], [s, s, s + 1])
+    radius = float(model.orbit.radius)
+    step = radius * np.hypot(lat[1:] - lat[0], np.angle(np.exp(1j * (lon[1:] - lon[0]))) * np.cos(lat[0]))
+    return float(np.mean(step))
+
+
+def _centres(models):
+    """``(n, 2)`` latitude, longitude (radians) of the images' centres."""
+    return np.array([_chunked(_forward_kernel, (m,), [0.5 * (1 + m.n_pixels)], [0.5 * (1 + m.n_scans)])
+                     for m in models])[:, :, 0]
+
+
+def _may_overlap(models, sizes):
+    """``(n, n)`` bool: the images' centres are closer than the sum of their half diagonals (plus 20 %)."""
+    centres = _centres(models)
+    reach = np.array([0.6 * np.hypot(m.n_pixels, m.n_scans) * size for m, size in zip(models, sizes, strict=True)])
+    distance = np.asarray(great_circle_distance(centres[:, None, 0], centres[:, None, 1], centres[None, :, 0],
+                                                centres[None, :, 1], float(models[0].orbit.radius)))
+    return distance < reach[:, None] + reach[None, :]
+
+
+def _lattice(models, spacing_m):
+    """Ground points ``(latitude, longitude)`` every ``spacing_m`` over the union of the images, and the plane."""
+    centres = _centres(models)
+    plane = TangentPlane(np.mean(centres[:, 0]), np.angle(np.mean(np.exp(1j * centres[:, 1]))))
+    xs, ys = [], []
+    for m in models:
+        edge_p = np.r_[np.linspace(1, m.n_pixels, 17), np.full(17, m.n_pixels), np.linspace(1, m.n_pixels, 17),
+                       np.ones(17)]
+        edge_s = np.r_[np.ones(17), np.linspace(1, m.n_scans, 17), np.full(17, m.n_scans),
+                       np.linspace(1, m.n_scans, 17)]
+        x, y = _chunked(_plane_forward, (plane,), *_chunked(_forward_kernel, (m,), edge_p, edge_s))
+        xs.append(x)
+        ys.append(y)
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    gx, gy = np.meshgrid(np.arange(x.min(), x.max() + spacing_m, spacing_m),
+                         np.arange(y.min(), y.max() + spacing_m, spacing_m))
+    return plane, gx.ravel(), gy.ravel()
+
+
+def _static_footprint(static, plane, x, y, half_width):
+    """True where ``static`` holds on a 5 x 5 grid of points over ±``half_width`` m around every ``(x, y)``."""
+    ok = np.ones(x.size, bool)
+    for dx in np.linspace(-half_width, half_width, 5):
+        for dy in np.linspace(-half_width, half_width, 5):
+            ok &= np.asarray(static(*_chunked(_plane_inverse, (plane,), x + dx, y + dy)), bool)
+    return ok
+
+
+def _patches(data, pixel, scan, half):
+    """``(n, 2h+1, 2h+1)`` patches of ``data`` around integer 1-based ``(pixel, scan)`` (inside the image)."""
+    offsets = np.arange(-half, half + 1)
+    rows = (scan.astype(int) - 1)[:, None, None] + offsets[None, :, None]
+    columns = (pixel.astype(int) - 1)[:, None, None] + offsets[None, None, :]
+    return data[rows, columns]
+
+
+def _windows(data, source, target, pixel, scan, half):
+    """Windows ``(n, 2h+1, 2h+1)`` of ``data`` (image of ``target``) resampled on the pixel grid of ``source``
+    around integer ``(pixel, scan)``; and whether each lies inside ``target`` (bicubic needs one more pixel)."""
+    offsets = np.arange(-half, half + 1, dtype=float)
+    shape = (pixel.size, offsets.size, offsets.size)
+    grid_p = np.broadcast_to(pixel[:, None, None] + offsets[None, None, :], shape)
+    grid_s = np.broadcast_to(scan[:, None, None] + offsets[None, :, None], shape)
+    p, s = transfer(source, target, grid_p, grid_s)
+    valid = (np.isfinite(p) & np.isfinite(s) & (p >= 2) & (p <= target.n_pixels - 1) & (s >= 2)
+             & (s <= target.n_scans - 1)).all(axis=(1, 2))
+    size = 2 * half + 1
+    out = np.empty(p.shape, np.float32)
+    image = np.asarray(data, np.float32)
+    for start in range(0, pixel.size, _CHUNK):
+        part = slice(start, start + _CHUNK)
+        map_x = np.nan_to_num(p[part] - 1.0, nan=-10.0).astype(np.float32).reshape(-1, size)
+        map_y = np.nan_to_num(s[part] - 1.0, nan=-10.0).astype(np.float32).reshape(-1, size)
+        resampled = cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        out[part] = resampled.reshape(-1, size, size)
+    return out, valid & np.isfinite(out).all(axis=(1, 2))
+
+
+@dataclass(frozen=True)
+class _Matches:
+    """Matches from a reference image into another, for ``n`` candidates."""
+
+    candidate: np.ndarray
+    pixel: np.ndarray
+    scan: np.ndarray
+    sigma: np.ndarray  # (n, 2) pixel, scan in the other image
+    sigma_reference: np.ndarray  # (n, 2) in the reference image
+    correlation: np.ndarray
+    status: np.ndarray
+
+
+def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search, options: TieOptions) -> _Matches:
+    """Match the reference patches at integer ``(pixel, scan)`` of image r in image o."""
+    half = options.patch // 2
+    templates = _patches(np.asarray(data_r, np.float32), pixel, scan, half)
+    windows, valid = _windows(data_o, model_r, model_o, pixel, scan, half + search)
+    n = pixel.size
+    status = np.full(n, GOOD)
+    shift = np.zeros((n, 2))  # (d_scan, d_pixel) in the reference frame
+    correlation, sharpness = np.full(n, np.nan), np.full(n, np.nan)
+    covariance = np.zeros((n, 2, 2))
+    for k in range(n):
+        if not (valid[k] and np.isfinite(templates[k]).all()):
+            status[k] = NO_DATA
+            continue
+        if templates[k].std() < options.min_contrast:
+            status[k] = LOW_CONTRAST
+            continue
+        surface, i, j, correlation[k], sharpness[k] = correlation_peak(templates[k], windows[k])
+        if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
+            status[k] = AT_EDGE
+            continue
+        offset, hessian = quadratic_peak(surface, i, j)
+        if np.linalg.det(hessian) <= 0 or hessian[0, 0] >= 0:
+            status[k] = FLAT_PEAK
+            continue
+        shift[k] = (i - search + offset[0], j - search + offset[1])
+        covariance[k] = 2.0 * max(1.0 - correlation[k], 0.0) / options.patch**2 * np.linalg.inv(-hessian)
+        if correlation[k] < options.min_correlation:
+            status[k] = LOW_CORRELATION
+        elif sharpness[k] < options.min_sharpness:
+            status[k] = FLAT_PEAK
+    tested = median_test(Displacements(scan, pixel, shift[:, 0], shift[:, 1], correlation, sharpness, status),
+                         TrackingOptions(median_threshold=options.median_threshold, neighbours=options.neighbours))
+    status = tested.status
+    matched_p, matched_s = pixel + shift[:, 1], scan + shift[:, 0]
+    p, s, jacobian = _chunked(_transfer_kernel, (model_r, model_o), matched_p, matched_s)
+    covariance = covariance[:, ::-1, ::-1]  # (pixel, scan) order
+    in_other = np.einsum("nij,njk,nlk->nil", jacobian, covariance, jacobian)
+    floor = options.pointing_sigma**2
+    sigma = np.sqrt(floor + 0.5 * np.diagonal(in_other, axis1=1, axis2=2))
+    sigma_reference = np.sqrt(floor + 0.5 * np.diagonal(covariance, axis1=1, axis2=2))
+    return _Matches(candidate, p, s, sigma, sigma_reference, correlation, status)
+
+
+def find_ties(images: Sequence, models: Sequence[ScanModel], static: Callable, covariances=None,
+              options: TieOptions = TieOptions()) -> TiePoints:
+    """Tie points between all overlapping images of a sequence, on the static surface.
+
+    Args:
+        images: ``(n_scans, n_pixels)`` arrays (row = scan line − 1, column = pixel − 1; NaN: no data).
+        models: the current :class:`ScanModel` of every image (e.g. fitted to its control points).
+        static: ``static(latitude, longitude) -> bool`` arrays (radians): land and fast ice; :func:`grid_mask`
+            makes one from a raster mask.
+        covariances: ``(5, 5)`` per image (order of :data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`), the models'
+            uncertainty, sizing each pair's search window; ``None``: ``options.search``.
+        options: :class:`TieOptions`.
+
+    Returns:
+        :class:`TiePoints` (GOOD matches only; :attr:`TiePoints.candidates` counts every match tried by status).
+    """
+    models = list(models)
+    images = [np.asarray(a, float) for a in images]
+    if len(images) != len(models):
+        raise SeaiceError(f"{len(images)} images but {len(models)} models")
+    for k, (image, model) in enumerate(zip(images, models, strict=True)):
+        if image.shape != (model.n_scans, model.n_pixels):
+            raise SeaiceError(f"image {k}: shape {image.shape} differs from its model's (n_scans, n_pixels) = "
+                              f"({model.n_scans}, {model.n_pixels})")
+    if covariances is not None:
+        covariances = [np.asarray(c, float) for c in covariances]
+        if len(covariances) != len(models) or any(c.shape != (5, 5) for c in covariances):
+            raise SeaiceError(f"covariances: one (5, 5) matrix per image ({len(models)}) expected")
+    n_images = len(models)
+    half = options.patch // 2
+    sizes = [_pixel_size(m) for m in models]
+    near = _may_overlap(models, sizes)
+    searches = {}
+    for r in range(n_images):
+        for o in range(n_images):
+            if r != o and near[r, o] and (search := _pair_search(
+                    models[r], models[o], None if covariances is None else (covariances[r], covariances[o]), options,
+                    half + 2)):
+                searches[(r, o)] = search
+    plane, x, y = _lattice(models, options.spacing * float(np.mean(sizes)))
+    latitude, longitude = _chunked(_plane_inverse, (plane,), x, y)
+    seen = np.zeros((n_images, x.size), bool)
+    pixels, scans = np.zeros((n_images, x.size)), np.zeros((n_images, x.size))
+    for i, model in enumerate(models):
+        p, s = _chunked(_inverse_kernel, (model,), latitude, longitude)
+        pixels[i], scans[i] = np.rint(p), np.rint(s)
+        seen[i] = _inside(model, pixels[i], scans[i], half + 2)
+    keep = seen.sum(axis=0) >= 2
+    keep[keep] = _static_footprint(static, plane, x[keep], y[keep], (half + 1) * max(sizes))
+    candidates = np.nonzero(keep)[0]
+    contrast = np.full((n_images, candidates.size), -np.inf)
+    for i in range(n_images):
+        visible = seen[i, candidates]
+        if visible.any():
+            patches = _patches(images[i], pixels[i, candidates[visible]], scans[i, candidates[visible]], half)
+            contrast[i, visible] = np.nan_to_num(patches.std(axis=(1, 2)), nan=-1.0)
+    found: list[tuple[tuple[int, int], _Matches]] = []
+    active = np.ones(candidates.size, bool)
+    for _ in range(n_images - 1):  # a candidate whose reference matched nowhere tries the next best reference
+        reference = np.where(active, np.argmax(contrast, axis=0), -1)
+        tied = np.zeros(candidates.size, bool)
+        for r in range(n_images):
+            for o in range(n_images):
+                if (r, o) not in searches:
+                    continue
+                window_inside = _inside(models[o], pixels[o, candidates], scans[o, candidates],
+                                        half + searches[(r, o)] + 3)
+                chosen = np.nonzero((reference == r) & window_inside)[0]
+                if chosen.size == 0:
+                    continue
+                matches = _match_pair(images[r], images[o], models[r], models[o], candidates[chosen],
+                                      pixels[r, candidates[chosen]], scans[r, candidates[chosen]], searches[(r, o)],
+                                      options)
+                found.append(((r, o), matches))
+                tied[chosen[matches.status == GOOD]] = True
+        contrast[reference[active & ~tied], np.nonzero(active & ~tied)[0]] = -np.inf
+        active &= ~tied & (np.isfinite(contrast).sum(axis=0) >= 2)
+        if not active.any():
+            break
+    return _assemble(found, models, pixels, scans, searches)
+
+
+def _assemble(found, models, pixels, scans, searches) -> TiePoints:
+    """Number the candidates with at least one good match and list their observations."""
+    rows: dict[str, list] = {key: [] for key in ("image", "candidate", "pixel", "scan", "sigma_pixel", "sigma_scan",
+                                                 "correlation", "reference")}
+    reference_sigma: dict[int, list] = {}
+    owner: dict[int, int] = {}
+    for (r, o), m in found:
+        good = m.status == GOOD
+        for key, values in (("image", np.full(good.sum(), o)), ("candidate", m.candidate[good]),
+                            ("pixel", m.pixel[good]), ("scan", m.scan[good]), ("sigma_pixel", m.sigma[good, 0]),
+                            ("sigma_scan", m.sigma[good, 1]), ("correlation", m.correlation[good]),
+                            ("reference", np.zeros(good.sum(), bool))):
+            rows[key].append(values)
+        for c, sigma in zip(m.candidate[good], m.sigma_reference[good], strict=True):
+            reference_sigma.setdefault(int(c), []).append(sigma)
+            owner[int(c)] = r
+    tied = np.array(sorted(owner), int)
+    if tied.size:
+        owners = np.array([owner[c] for c in tied])
+        sigma = np.array([np.mean(reference_sigma[c], axis=0) for c in tied])
+        for key, values in (("image", owners), ("candidate", tied), ("pixel", pixels[owners, tied]),
+                            ("scan", scans[owners, tied]), ("sigma_pixel", sigma[:, 0]),
+                            ("sigma_scan", sigma[:, 1]), ("correlation", np.full(tied.size, np.nan)),
+                            ("reference", np.ones(tied.size, bool))):
+            rows[key].append(values)
+    table = {key: np.concatenate(v) if v else np.zeros(0) for key, v in rows.items()}
+    order = np.lexsort((table["image"], ~table["reference"].astype(bool), table["candidate"]))
+    table = {key: v[order] for key, v in table.items()}
+    tie = np.searchsorted(tied, table["candidate"].astype(int))
+    lat, lon = np.zeros(tied.size), np.zeros(tied.size)
+    if tied.size:
+        for r in np.unique(owners):
+            members = owners == r
+            lat[members], lon[members] = _chunked(_forward_kernel, (models[r],), pixels[r, tied[members]],
+                                                  scans[r, tied[members]])
+    candidates: dict[tuple[int, int], np.ndarray] = {}
+    for pair, m in found:
+        candidates[pair] = candidates.get(pair, 0) + np.bincount(m.status, minlength=len(STATUS))
+    return TiePoints(table["image"].astype(int), tie, table["pixel"], table["scan"], table["sigma_pixel"],
+                     table["sigma_scan"], table["correlation"], table["reference"].astype(bool), lat, lon,
+                     dict(sorted(candidates.items())), {pair: searches[pair] for pair in sorted(candidates)})

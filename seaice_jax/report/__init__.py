@@ -1,0 +1,1 @@
+"""Presentation: figures (PNG, matplotlib) and text reports of results computed by the layers below."""

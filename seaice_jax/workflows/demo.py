@@ -1,0 +1,312 @@
+"""``seaice demo``: the main job on the built-in scenario (grows with the project).
+
+Geolocates a simulated radar strip (range-Doppler, source 000 eq. A5) and the satellite image of source 001
+Figure 3-3 (great-circle scan model), checks both by their inverses, compares the Figure 3-3 stations with the
+printed deviations, fits the image's orbit and scan parameters to the five stations from no prior knowledge
+(Gauss-Newton, with covariance), adjusts a small radar block by both methods, and runs a short simulated image
+sequence through rectification, remapping, tracking, velocities and a film; writes CSV tables, reports, NetCDF,
+GeoTIFF, GeoJSON and PNG maps.
+"""
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax.adjust.orbit_fit import fit_scan_model, position_uncertainty
+from seaice_jax.files import atomic_path, write_csv, write_json
+from seaice_jax.geometry.earth import latitude_longitude
+from seaice_jax.geometry.projections import TangentPlane, nsidc_polar_stereographic
+from seaice_jax.geometry.range_doppler import ground_point, imaging_time_and_range
+from seaice_jax.geometry.scan import ScanModel
+from seaice_jax.imagery.remap import remap
+from seaice_jax.imagery.tracking import track
+from seaice_jax.io.project import write_project
+from seaice_jax.report.figures import MapLayer, MapPanel, plot_image_field, plot_maps
+from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
+from seaice_jax.sensors.control import ControlPoints
+from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
+from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
+from seaice_jax.simulate.scenarios import FIGURE_3_3_STATIONS, demo_radar_strip, figure_3_3_image
+from seaice_jax.workflows.image_sequence import (
+    run_movie,
+    run_remap,
+    run_track,
+    run_velocities,
+    write_simulated_sequence,
+)
+from seaice_jax.workflows.radar_block import run_block
+
+
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo wrote and the numbers its summary reports."""
+
+    files: tuple[Path, ...]
+    radar_points: int
+    radar_time_error_s: float
+    radar_range_error_m: float
+    image_points: int
+    image_round_trip_pixels: float
+    station_dlat_difference_arcmin: float
+    station_dlon_difference_arcmin: float
+    fit_rms_km: float
+    fit_subtrack_pixel: float
+    summary: str
+
+
+def _compare_methods(scenario, runs) -> list[str]:
+    """Lines comparing block adjustments with the simulation's truth: stations and drift of the ice features."""
+    lines = []
+    for name, run in runs.items():
+        result = run.result
+        index = np.array([int(p[1:]) - 1 for p in result.point_ids])  # write_project names feature i "P{i + 1:04d}"
+        truth = [c.positions[index] for c in scenario.truth]
+        kinds = scenario.kinds[index]
+        stations = kinds == "station"
+        station = np.concatenate([result.positions[c][stations] - truth[c][stations] for c in range(2)])
+        drift = (result.positions[1] - result.positions[0]) - (truth[1] - truth[0])
+        drift = drift[(kinds == "ice") & np.isfinite(drift).all(axis=1)]
+        s, d = (np.sqrt(np.mean(v**2, axis=0)) / 1000 for v in (station, drift))
+        lines.append(f"{name:<18} stations {s[0]:.3f} / {s[1]:.3f}, drift {d[0]:.3f} / {d[1]:.3f}")
+    return lines
+
+
+def _image_sequence(out_dir: Path):
+    """Four simulated NOAA-7-like images of moving pack ice (one cloudy) through the whole workflow, and the
+    tracked drift against the simulation's truth."""
+    sequence = simulate_sequence(0, n_images=4, size=160, clouds=True)
+    project = write_simulated_sequence(out_dir / "project", sequence=sequence)
+    remapped = run_remap(project, out_dir / "remapped", progress=False)
+    tracked = run_track(out_dir / "remapped", out_dir / "drift", progress=False)
+    speeds = run_velocities(out_dir / "drift" / "floes.csv", out_dir / "velocities", box_size=75_000.0)
+    film = run_movie(out_dir / "remapped", out_dir / "film.gif", land_mask=out_dir / "project" / "land_mask.npy",
+                     records=out_dir / "drift" / "floes.csv")
+    # tracked displacements of the first pair against the truth, with the fitted and with the true scan models
+    grid = remapped.result.grid
+    first, second = sequence.images[:2]
+    errors = {}
+    for label, models in (("fitted", remapped.result.models), ("true", [first.model, second.model])):
+        values, valid = remap([first.data, second.data], models[:2], grid)
+        d = track(values[0], values[1], valid_first=valid[0], valid_second=valid[1])
+        vectors = d.in_map(grid)
+        xy = np.stack([vectors["x"], vectors["y"]], 1)[d.good]
+        truth = true_displacement(sequence.scene, xy, first.time, second.time)
+        measured = np.stack([vectors["dx"], vectors["dy"]], 1)[d.good]
+        length = np.hypot(*(measured - truth).T)
+        errors[label] = (float(np.median(length)) / 1000, float(np.sqrt(np.mean(length**2))) / 1000, d.good.sum())
+    lines = ["  satellite image sequence (4 simulated NOAA-7 passes over Lancaster-like pack ice, one day apart; "
+             "sequence/):",
+             *["    " + line for line in remapped.report.splitlines()],
+             *["    " + line for line in tracked.report.splitlines()],
+             *["    " + line for line in speeds.report.splitlines()],
+             f"    {film.report}",
+             f"    tracked drift of the first pair against the truth ({errors['fitted'][2]} vectors), error "
+             f"length median / RMS: {errors['fitted'][0]:.2f} / {errors['fitted'][1]:.2f} km with the fitted scan "
+             f"models, {errors['true'][0]:.2f} / {errors['true'][1]:.2f} km with the true ones: the rectification "
+             "limits it; the RMS comes from vectors straddling the fast-ice edge and cloud edges"]
+    return lines, [*remapped.files, *tracked.files, *speeds.files, *film.files]
+
+
+@dataclass(frozen=True)
+class RadarStripCheck:
+    """A simulated radar strip geolocated (every image line x range sample) and checked by the inverse.
+
+    Attributes:
+        times, ranges: ``(lines, samples)`` s and m. latitude, longitude: ``(lines, samples)`` rad.
+        plane: the tangent plane at the strip centre; x, y: ``(lines, samples)`` m in it.
+        time_error, range_error: largest error of inverse(forward), s and m. duration: s of flight.
+    """
+
+    times: np.ndarray
+    ranges: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray
+    plane: TangentPlane
+    x: np.ndarray
+    y: np.ndarray
+    time_error: float
+    range_error: float
+    duration: float
+
+
+@dataclass(frozen=True)
+class ImageCheck:
+    """The satellite image of source 001 Figure 3-3 geolocated on a pixel/scan grid and checked by the inverse,
+    and its five stations against the printed deviations.
+
+    Attributes:
+        model: the printed scan model. pixel, scan: ``(17, 17)`` grid. latitude, longitude: rad; x, y: m in
+        EPSG:3413. round_trip: largest inverse(forward) error, pixels. dlat, dlon: ``(5,)`` computed minus known
+        station positions, arc minutes.
+    """
+
+    model: ScanModel
+    pixel: np.ndarray
+    scan: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    round_trip: float
+    dlat: np.ndarray
+    dlon: np.ndarray
+
+    @property
+    def printed_dlat(self) -> np.ndarray:
+        return np.array([s.printed_dlat_arcmin for s in FIGURE_3_3_STATIONS])
+
+    @property
+    def printed_dlon(self) -> np.ndarray:
+        return np.array([s.printed_dlon_arcmin for s in FIGURE_3_3_STATIONS])
+
+
+def geolocate_radar_strip() -> RadarStripCheck:
+    """Every image line (time) x range sample of the demo strip -> ground point (source 000 eq. A5), and back."""
+    strip = demo_radar_strip()
+    position, velocity = strip.trajectory(jnp.asarray(strip.times))
+    shape = (strip.times.size, strip.slant_ranges.size)
+    points = ground_point(jnp.broadcast_to(position[:, None, :], shape + (3,)),
+                          jnp.broadcast_to(velocity[:, None, :], shape + (3,)),
+                          jnp.broadcast_to(jnp.asarray(strip.slant_ranges)[None, :], shape),
+                          look_side=strip.look_side)
+    time_back, range_back = imaging_time_and_range(points, strip.trajectory, strip.times[0] - 60.0,
+                                                   strip.times[-1] + 60.0)
+    times, ranges = np.meshgrid(strip.times, strip.slant_ranges, indexing="ij")
+    latitude, longitude = (np.asarray(a) for a in latitude_longitude(points))
+    plane = TangentPlane(float(np.mean(latitude)), float(np.mean(longitude)))
+    x, y = (np.asarray(a) for a in plane.forward(latitude, longitude))
+    return RadarStripCheck(times, ranges, latitude, longitude, plane, x, y,
+                           float(np.max(np.abs(np.asarray(time_back) - times))),
+                           float(np.max(np.abs(np.asarray(range_back) - ranges))),
+                           float(strip.times[-1] - strip.times[0]))
+
+
+def geolocate_figure_3_3() -> ImageCheck:
+    """A pixel/scan grid of the Figure 3-3 image -> latitude/longitude (great-circle scan model) and back; the
+    stations' computed minus known positions."""
+    model = figure_3_3_image()
+    pixel, scan = np.meshgrid(np.linspace(1, 512, 17), np.linspace(1, 512, 17), indexing="ij")
+    latitude, longitude = (np.asarray(a) for a in model.forward(pixel, scan))
+    pixel_back, scan_back = model.inverse(latitude, longitude)
+    x, y = (np.asarray(a) for a in nsidc_polar_stereographic("north").forward(latitude, longitude))
+    stations = FIGURE_3_3_STATIONS
+    station_lat, station_lon = (np.degrees(np.asarray(a)) for a in model.forward(
+        np.array([s.pixel for s in stations], float), np.array([s.scan for s in stations], float)))
+    return ImageCheck(model, pixel, scan, latitude, longitude, x, y,
+                      float(np.max(np.hypot(np.asarray(pixel_back) - pixel, np.asarray(scan_back) - scan))),
+                      (station_lat - np.array([s.latitude_deg for s in stations])) * 60.0,
+                      (station_lon - np.array([s.longitude_deg for s in stations])) * 60.0)
+
+
+def _write_geolocation(radar: RadarStripCheck, image: ImageCheck, out_dir: Path) -> list[Path]:
+    """``radar_strip.csv``, ``satellite_image.csv``, ``figure_3_3_stations.csv`` and ``map.png``."""
+    stations = FIGURE_3_3_STATIONS
+    polar = nsidc_polar_stereographic("north")
+    known_x, known_y = (np.asarray(a) for a in polar.forward(
+        np.radians([s.latitude_deg for s in stations]), np.radians([s.longitude_deg for s in stations])))
+    return [
+        write_csv(out_dir / "radar_strip.csv", {
+            "time_s": radar.times, "slant_range_m": radar.ranges, "latitude_deg": np.degrees(radar.latitude),
+            "longitude_deg": np.degrees(radar.longitude), "tangent_plane_x_m": radar.x, "tangent_plane_y_m": radar.y}),
+        write_csv(out_dir / "satellite_image.csv", {
+            "pixel": image.pixel, "scan": image.scan, "latitude_deg": np.degrees(image.latitude),
+            "longitude_deg": np.degrees(image.longitude), "epsg3413_x_m": image.x, "epsg3413_y_m": image.y}),
+        write_csv(out_dir / "figure_3_3_stations.csv", {
+            "id": [s.number for s in stations], "name": [s.name for s in stations],
+            "pixel": [s.pixel for s in stations], "scan": [s.scan for s in stations],
+            "latitude_deg": [s.latitude_deg for s in stations], "longitude_deg": [s.longitude_deg for s in stations],
+            "dlat_arcmin": image.dlat, "dlon_arcmin": image.dlon,
+            "printed_dlat_arcmin": image.printed_dlat, "printed_dlon_arcmin": image.printed_dlon}),
+        plot_maps(out_dir / "map.png", [
+            MapPanel(radar.plane, [MapLayer("radar strip: lines every 20 s, ranges 10.5-30 km", radar.x, radar.y,
+                                            "grid")],
+                     "Simulated radar strip (range-Doppler, right-looking)\ntangent plane at the strip centre"),
+            MapPanel(polar, [
+                MapLayer("NOAA-7 image of source 001 Fig. 3-3 (every 32nd pixel/line)", image.x, image.y, "grid"),
+                MapLayer("reference stations", known_x, known_y, "labelled", [s.name for s in stations]),
+            ], "Satellite image (great-circle scan model)\nNSIDC polar stereographic EPSG:3413"),
+        ], "seaice_jax demo: geolocation by the two geometric models"),
+    ]
+
+
+def _orbit_fit(model: ScanModel, out_dir: Path):
+    """The orbit fit from the five stations alone (no starting values): ``(fit, report, files)`` with the report,
+    its JSON and the position-uncertainty map."""
+    stations = FIGURE_3_3_STATIONS
+    control = ControlPoints.from_degrees([s.pixel for s in stations], [s.scan for s in stations],
+                                         [s.latitude_deg for s in stations], [s.longitude_deg for s in stations],
+                                         1.0, [str(s.number) for s in stations])
+    fit = fit_scan_model(control, model.orbit, direction="auto")
+    report = orbit_fit_report(fit, names={str(s.number): s.name for s in stations})
+    report_path = out_dir / "orbit_fit_report.txt"
+    with atomic_path(report_path) as temporary:
+        temporary.write_text(report + "\n")
+    grid_pixel, grid_scan = np.meshgrid(np.linspace(1, 512, 33), np.linspace(1, 512, 33))
+    sigma_north, sigma_east = (np.asarray(a) for a in position_uncertainty(fit, grid_pixel, grid_scan,
+                                                                            a_priori=True))
+    files = [report_path, write_json(out_dir / "orbit_fit.json", orbit_fit_json(fit)), plot_image_field(
+        out_dir / "position_sigma.png", grid_pixel, grid_scan, np.hypot(sigma_north, sigma_east) / 1000.0,
+        "Position uncertainty of the fitted image (5 stations, 1 km each)\n"
+        "from the covariance of the five orbit/scan unknowns", "σ of ground position (km)",
+        ([s.pixel for s in stations], [s.scan for s in stations], [s.name for s in stations]))]
+    return fit, report, files
+
+
+def _radar_block(out_dir: Path):
+    """A small simulated AIDJEX-like block (3 strips, two coverages 16 days apart) by both methods: the report
+    lines and files."""
+    scenario = aidjex_scenario(0, plan=FlightPlan(strips=3), features=200)
+    project = write_project(scenario, out_dir / "aidjex")
+    block = run_block(project, out_dir / "aidjex" / "simultaneous")
+    sequential = run_block(project, out_dir / "aidjex" / "sequential", method="sequential")
+    lines = ["  radar block (simulated AIDJEX, 3 strips, 16 days of drift; project in aidjex/, results in "
+             "aidjex/simultaneous/ and aidjex/sequential/):",
+             *["    " + line for line in block.report.splitlines()],
+             "    both methods against the simulation's truth (RMS per coordinate x / y, km):",
+             *["      " + line for line in _compare_methods(scenario, {"sequential (1979)": sequential,
+                                                                      "simultaneous": block})]]
+    return lines, [project, *block.files, *sequential.files]
+
+
+def _summary(radar: RadarStripCheck, image: ImageCheck, fit_report: str) -> list[str]:
+    stations = FIGURE_3_3_STATIONS
+    return [
+        "seaice_jax demo",
+        f"  radar strip: {radar.latitude.size} points, {radar.duration:.0f} s of flight at 10 km, "
+        f"ground swath {np.ptp(radar.y) / 1000:.0f} x {np.ptp(radar.x) / 1000:.0f} km",
+        f"    inverse(forward): time error {radar.time_error:.1e} s, range error {radar.range_error:.1e} m",
+        f"  satellite image (source 001 Fig. 3-3, NOAA-7, southbound): {image.latitude.size} grid points,",
+        f"    latitude {np.degrees(np.min(image.latitude)):.2f}..{np.degrees(np.max(image.latitude)):.2f} deg, "
+        f"longitude {np.degrees(np.min(image.longitude)):.2f}..{np.degrees(np.max(image.longitude)):.2f} deg",
+        f"    inverse(forward): {image.round_trip:.1e} pixel",
+        "    Figure 3-3 stations, computed minus known vs printed (arc minutes):",
+        *[f"      {s.number} {s.name:<11} DLAT {a:+.2f} (printed {s.printed_dlat_arcmin:+.4f})  "
+          f"DLONG {b:+.2f} (printed {s.printed_dlon_arcmin:+.4f})"
+          for s, a, b in zip(stations, image.dlat, image.dlon, strict=True)],
+        f"    largest difference from the printout: {np.max(np.abs(image.dlat - image.printed_dlat)):.2f}' lat, "
+        f"{np.max(np.abs(image.dlon - image.printed_dlon)):.2f}' lon (the printed parameters are rounded)",
+        "  orbit fit to the five stations from no prior knowledge (Gauss-Newton; 1985 printout: subtrack 112, "
+        "node 66.65, DEV 0.5687'/0.6017'):",
+        *["    " + line for line in fit_report.splitlines()],
+    ]
+
+
+def run_demo(out_dir: str | os.PathLike = "seaice-demo") -> DemoResult:
+    """Run the demo and write its files into ``out_dir`` (created if missing)."""
+    out_dir = Path(out_dir)
+    radar, image = geolocate_radar_strip(), geolocate_figure_3_3()
+    files = _write_geolocation(radar, image, out_dir)
+    fit, fit_report, fit_files = _orbit_fit(image.model, out_dir)
+    block_lines, block_files = _radar_block(out_dir)
+    sequence_lines, sequence_files = _image_sequence(out_dir / "sequence")
+    files += fit_files + block_files + sequence_files
+    lines = [*_summary(radar, image, fit_report), *block_lines, *sequence_lines,
+             f"  wrote {len(files)} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "
+             "aidjex/simultaneous/report.txt, sequence/film.gif, ...)"]
+    return DemoResult(tuple(files), radar.latitude.size, radar.time_error, radar.range_error, image.latitude.size,
+                      image.round_trip, float(np.max(np.abs(image.dlat - image.printed_dlat))),
+                      float(np.max(np.abs(image.dlon - image.printed_dlon))), fit.rms_km,
+                      float(fit.model.subtrack_pixel), "\n".join(lines))

@@ -1,0 +1,620 @@
+"""Satellite image sequences end to end (source 001, VHR2/VHR3, ICE, MOVIE): rectify each image on its control
+points, remap all into one grid, track the ice automatically, derive velocities, boxes, deformation and a film.
+
+Each step computes a typed result first (:func:`remap_sequence` -> :class:`RemappedStack`, :func:`track_sequence`
+-> :class:`TrackedSequence`, :func:`floe_kinematics` -> :class:`FloeKinematics`), then writes it atomically. The
+CLI's ``remap``, ``track``, ``velocities`` and ``movie`` are thin wrappers around :func:`run_remap`,
+:func:`run_track`, :func:`run_velocities` and :func:`run_movie`, each returning a :class:`Step`."""
+
+import json
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Generic, TypeVar, cast
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from seaice_jax.adjust.orbit_fit import (
+    control_point_deviations,
+    fit_scan_model,
+    position_jacobian,
+    propagate_position_sigma,
+)
+from seaice_jax.drift.kinematics import (
+    BoxAverages,
+    Deformation,
+    Velocities,
+    box_averages,
+    box_time_series,
+    deformation,
+    east_north_axes,
+    grid_to_east_north,
+    velocities,
+)
+from seaice_jax.drift.records import FloeRecords, read_records, write_records
+from seaice_jax.errors import SeaiceError
+from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.geometry.projections import MapGrid
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
+from seaice_jax.imagery.movie import render_frames, write_movie
+from seaice_jax.imagery.remap import remap
+from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, track
+from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
+from seaice_jax.io.sequence import SequenceProject, make_grid, named_projection, read_sequence, write_sequence
+from seaice_jax.report.figures import (
+    plot_box_averages,
+    plot_remapped,
+    plot_trajectories,
+    plot_vectors,
+    plot_velocity_series,
+)
+from seaice_jax.simulate.satellite import land_mask, simulate_sequence
+from seaice_jax.timefmt import time_after
+
+Result = TypeVar("Result")
+_UNKNOWNS = len(SCAN_UNKNOWNS)
+
+
+@dataclass(frozen=True)
+class Step(Generic[Result]):
+    """What a step computed (``result``) and wrote (``files``), and its text ``report``."""
+
+    files: tuple[Path, ...]
+    report: str
+    result: Result
+
+
+# ------------------------------------------------------------------------------------------------ remap
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """How one image's scan model was found.
+
+    Attributes:
+        name: the image. model: its scan model. control: number of control points used (0: the model was given).
+        sigma0: σ̂0 of the fit (``nan`` if given). point_ids: the image's control points; north, east: ``(n,)``
+        their deviations, m (all empty without control points).
+    """
+
+    name: str
+    model: ScanModel
+    control: int
+    sigma0: float
+    point_ids: tuple[str, ...]
+    north: np.ndarray
+    east: np.ndarray
+
+
+@dataclass(frozen=True)
+class RemappedStack:
+    """A sequence remapped into one grid (what ``remapped.npz`` holds).
+
+    Attributes:
+        values: ``(images, n_rows, n_columns)`` remapped pixels (NaN outside the swath). valid: same shape, bool.
+        times: ``(images,)`` s since ``epoch`` (ISO 8601 UTC). names: the images' names.
+        grid: the map grid; grid_spec: its definition (projection, centre_deg, pixel_m, shape).
+        models: the scan model of each image. covariance: ``(5·images, 5·images)`` of their unknowns
+        (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`, block-diagonal: one fit per image; zero for given models).
+        sigma: ``(images, n_rows, n_columns)`` m, geolocation σ of every grid pixel.
+    """
+
+    values: np.ndarray
+    valid: np.ndarray
+    times: np.ndarray
+    names: tuple[str, ...]
+    epoch: str
+    grid: MapGrid
+    grid_spec: dict
+    models: tuple[ScanModel, ...]
+    covariance: np.ndarray
+    sigma: np.ndarray
+
+    def pair_covariance(self, k: int) -> np.ndarray:
+        """``(10, 10)`` joint covariance of the unknowns of images ``k`` and ``k + 1``."""
+        return self.covariance[_UNKNOWNS * k:_UNKNOWNS * (k + 2), _UNKNOWNS * k:_UNKNOWNS * (k + 2)]
+
+
+def rectify_images(project: SequenceProject, progress: bool = False):
+    """The scan model of every image: given, or fitted to its control points (VHR2).
+
+    Returns:
+        ``(rectifications, covariance)``: one :class:`Rectification` per image and the block-diagonal covariance
+        ``(5·images, 5·images)`` of the fitted unknowns.
+    """
+    rectifications = []
+    covariance = np.zeros((_UNKNOWNS * len(project.images),) * 2)
+    for k, image in enumerate(tqdm(project.images, desc="rectify", disable=not progress, leave=False)):
+        model, sigma0 = image.model, float("nan")
+        if model is None:
+            assert image.control is not None  # read_sequence: a model or control points
+            fit = fit_scan_model(image.control, image.orbit, direction=image.direction,
+                                 n_pixels=image.data.shape[1], n_scans=image.data.shape[0])
+            assert fit.adjustment is not None  # the Gauss-Newton fit carries its adjustment
+            model, sigma0 = fit.model, float(fit.adjustment.sigma0)
+            block = slice(_UNKNOWNS * k, _UNKNOWNS * (k + 1))
+            covariance[block, block] = np.asarray(fit.adjustment.covariance)
+        north = east = np.zeros(0)
+        ids = ()
+        if image.control is not None:
+            north, east = (np.asarray(a) for a in control_point_deviations(model, image.control))
+            ids = image.control.ids
+        rectifications.append(Rectification(image.name, model, 0 if image.model is not None else len(ids), sigma0,
+                                            ids, north, east))
+    return tuple(rectifications), covariance
+
+
+def geolocation_sigma(models, covariance, grid: MapGrid) -> np.ndarray:
+    """``(images, n_rows, n_columns)`` m: the geolocation σ (√ of the mean of the north and east variances) of every
+    grid pixel in each image, from the covariance of its scan model's unknowns."""
+    latitude, longitude = grid.latitude_longitude()
+    maps = []
+    for k, model in enumerate(models):
+        pixel, scan = model.inverse(latitude, longitude)
+        block = covariance[_UNKNOWNS * k:_UNKNOWNS * (k + 1), _UNKNOWNS * k:_UNKNOWNS * (k + 1)]
+        sigma_north, sigma_east = (np.asarray(a) for a in propagate_position_sigma(model, block, pixel, scan))
+        maps.append(np.sqrt(0.5 * (sigma_north**2 + sigma_east**2)))
+    return np.stack(maps)
+
+
+def remap_sequence(project: SequenceProject, method: str = "bilinear", fill: int = 1, progress: bool = False):
+    """Rectify every image and remap the sequence into its grid.
+
+    Returns:
+        ``(stack, rectifications)``: the :class:`RemappedStack` and one :class:`Rectification` per image.
+    """
+    rectifications, covariance = rectify_images(project, progress)
+    models = tuple(r.model for r in rectifications)
+    values, valid = remap([im.data for im in project.images], list(models), project.grid, method=method, fill=fill)
+    stack = RemappedStack(np.asarray(values), np.asarray(valid), np.array([im.time for im in project.images]),
+                          tuple(im.name for im in project.images), project.epoch, project.grid, project.grid_spec,
+                          models, covariance, geolocation_sigma(models, covariance, project.grid))
+    return stack, rectifications
+
+
+def remap_report(stack: RemappedStack, rectifications, method: str, fill: int) -> str:
+    grid = stack.grid
+    lines = [f"remapped {len(stack.names)} images into a {grid.n_rows} x {grid.n_columns} grid of "
+             f"{float(grid.pixel_width):.0f} x {float(grid.pixel_height):.0f} m ({method}, fill {fill}):"]
+    for r in rectifications:
+        lines.append(f"  {r.name}: scan model given ({r.model.direction}bound)" if not r.control else
+                     f"  {r.name}: {r.model.direction}bound, {r.control} control points, σ̂0 {r.sigma0:.2f}")
+    for r in rectifications:
+        if r.north.size:
+            distance = np.hypot(r.north, r.east) / 1000
+            lines.append(f"  {r.name}: control-point deviation mean {distance.mean():.2f} km (max N-S "
+                         f"{np.abs(r.north).max() / 1000:.2f}, E-W {np.abs(r.east).max() / 1000:.2f} km)")
+    return "\n".join(lines)
+
+
+_STORED = ("values", "valid", "times", "names", "epoch", "grid", "sigma", "covariance", "parameters", "orbits",
+           "directions", "shapes")
+
+
+def save_stack(path: str | os.PathLike, stack: RemappedStack) -> Path:
+    """Write ``stack`` as a compressed ``.npz`` (atomically), with its grid and scan models."""
+    models = stack.models
+    with atomic_path(path) as temporary, open(temporary, "wb") as stream:
+        np.savez_compressed(
+            stream, values=stack.values, valid=stack.valid, times=stack.times, names=np.array(stack.names),
+            epoch=stack.epoch, grid=json.dumps(stack.grid_spec), sigma=stack.sigma, covariance=stack.covariance,
+            parameters=np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
+            directions=np.array([m.direction for m in models]),
+            shapes=np.array([[m.n_scans, m.n_pixels] for m in models]),
+            orbits=np.array([[float(m.orbit.inclination), float(m.orbit.period), float(m.orbit.altitude),
+                              float(m.orbit.earth_day), float(m.orbit.radius)] for m in models]))
+    return Path(path)
+
+
+def load_remapped(directory: str | os.PathLike) -> RemappedStack:
+    """The stack written by :func:`run_remap` into ``directory``, with its grid and scan models rebuilt."""
+    path = Path(directory) / "remapped.npz"
+    if not path.exists():
+        raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
+    with np.load(path) as data:
+        stored = {k: data[k] for k in data.files}
+    missing = [k for k in _STORED if k not in stored]
+    if missing:
+        raise SeaiceError(f"{path}: no {', '.join(missing)} (written by another version?): run `seaice remap` again")
+    spec = json.loads(str(stored["grid"]))
+    grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
+    models = tuple(ScanModel(**dict(zip(SCAN_UNKNOWNS, p, strict=True)), orbit=Orbit(*o),
+                             direction=cast(Direction, str(d)), n_pixels=int(s[1]), n_scans=int(s[0]))
+                   for p, o, d, s in zip(stored["parameters"], stored["orbits"], stored["directions"], stored["shapes"],
+                                         strict=True))
+    return RemappedStack(stored["values"], stored["valid"], stored["times"], tuple(str(n) for n in stored["names"]),
+                         str(stored["epoch"]), grid, spec, models, stored["covariance"], stored["sigma"])
+
+
+def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathLike,
+                   progress: bool = False) -> tuple[Path, ...]:
+    """``<image>.tif`` (GeoTIFF), ``remapped.npz``, ``rectification.csv`` (control-point deviations per image, as
+    the 1985 VHR2 printout) and ``remapped.png``."""
+    out = Path(out_dir)
+    labels = [time_after(stack.epoch, t) for t in stack.times]
+    files = [write_geotiff(out / f"{name}.tif", values, stack.grid, f"{name} {label}") for name, values, label in
+             tqdm(list(zip(stack.names, stack.values, labels, strict=True)), desc="write GeoTIFF",
+                  disable=not progress, leave=False)]
+    files.append(save_stack(out / "remapped.npz", stack))
+    measured = [r for r in rectifications if r.north.size]
+    if measured:
+        files.append(write_csv(out / "rectification.csv", {
+            "image": [r.name for r in measured for _ in r.north],
+            "point": [point for r in measured for point in r.point_ids],
+            "north_km": np.concatenate([r.north for r in measured]) / 1000,
+            "east_km": np.concatenate([r.east for r in measured]) / 1000}))
+    x, y = (np.asarray(a) / 1000 for a in stack.grid.xy())
+    files.append(plot_remapped(out / "remapped.png", stack.values, [
+        f"{n}\n{label[:16]}" for n, label in zip(stack.names, labels, strict=True)], [x.min(), x.max(), y.min(),
+                                                                                      y.max()]))
+    return tuple(files)
+
+
+def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
+              fill: int = 1, progress: bool = True) -> Step[RemappedStack]:
+    """Rectify (fit the scan model of every image with control points) and remap the sequence into its grid;
+    write it (:func:`write_remapped`)."""
+    stack, rectifications = remap_sequence(read_sequence(project_path), method, fill, progress)
+    return Step(write_remapped(stack, rectifications, out_dir, progress), remap_report(stack, rectifications,
+                                                                                         method, fill), stack)
+
+
+# ------------------------------------------------------------------------------------------------ track
+
+
+def displacement_sigma(models, covariance, grid: MapGrid, x, y, dx, dy, tracking_sigma: float) -> np.ndarray:
+    """σ ``(n, 2)`` (m, along the grid's x and y) of displacements ``dx, dy`` (m) from map points ``x, y`` of one
+    image to the next: the geolocation errors of both images at the vector's start and end through their scan
+    models (``models``: the two :class:`ScanModel`) and the joint covariance ``(10, 10)`` of their unknowns (the
+    cross-covariance of co-registered images included), plus ``tracking_sigma`` m per coordinate."""
+    jacobians = []
+    for model, xs, ys in ((models[0], x, y), (models[1], x + np.nan_to_num(dx), y + np.nan_to_num(dy))):
+        lat, lon = grid.projection.inverse(xs, ys)
+        pixel, scan = model.inverse(lat, lon)
+        jacobians.append(np.asarray(position_jacobian(model, pixel, scan)))  # (n, 2 north/east, 5)
+    design = np.concatenate([-jacobians[0], jacobians[1]], axis=2)  # end minus start
+    north_east = np.einsum("nij,jk,nlk->nil", design, covariance, design)
+    east_dir, north_dir = east_north_axes(grid.projection, x, y)
+    rotation = np.stack([north_dir, east_dir], axis=2)  # grid components of (north, east)
+    on_grid = np.einsum("nij,njk,nlk->nil", rotation, north_east, rotation)
+    return np.sqrt(np.diagonal(on_grid, axis1=1, axis2=2) + tracking_sigma**2)
+
+
+def make_lattice(grid: MapGrid, rows, columns, shape) -> MapGrid:
+    """The :class:`MapGrid` of the tracking lattice (every ``spacing``-th pixel of ``grid``)."""
+    step_r = (rows.max() - rows.min()) / max(shape[0] - 1, 1)
+    step_c = (columns.max() - columns.min()) / max(shape[1] - 1, 1)
+    x0, y0 = grid.to_xy(rows.min(), columns.min())
+    return MapGrid(grid.projection, x0, y0, float(grid.pixel_width) * step_c, float(grid.pixel_height) * step_r,
+                   shape[0], shape[1])
+
+
+@dataclass(frozen=True)
+class TrackedPair:
+    """The drift tracked from image ``first`` to ``first + 1`` on the lattice (every array ``(n,)``, lattice order).
+
+    Attributes:
+        first: image index. interval: s. status: tracking flags (:data:`~seaice_jax.imagery.tracking.STATUS`).
+        x, y: m, start positions; dx, dy: m along the grid axes; sigma: ``(n, 2)`` m of ``dx, dy``.
+        u_east, v_north: m/s toward geographic east and north. deformation: of the Delaunay triangles of the good
+        vectors (lattice indices), or ``None`` with fewer than three.
+    """
+
+    first: int
+    interval: float
+    status: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    sigma: np.ndarray
+    u_east: np.ndarray
+    v_north: np.ndarray
+    deformation: Deformation | None
+
+    @property
+    def good(self) -> np.ndarray:
+        return self.status == GOOD
+
+
+@dataclass(frozen=True)
+class TrackedSequence:
+    """The ice tracked through a remapped sequence: per pair of consecutive images a :class:`TrackedPair` on the
+    ``lattice``, and the floe ``records`` (the lattice of the first image followed while its tracking stays good)."""
+
+    pairs: tuple[TrackedPair, ...]
+    lattice: MapGrid
+    records: FloeRecords
+    options: TrackingOptions
+
+
+def _track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking_sigma: float) -> TrackedPair:
+    pair = track(stack.values[k], stack.values[k + 1], options, valid_first=stack.valid[k],
+                 valid_second=stack.valid[k + 1])
+    good = pair.good
+    vectors = pair.in_map(stack.grid)
+    x, y, dx, dy = (vectors[key] for key in ("x", "y", "dx", "dy"))
+    sigma = displacement_sigma(stack.models[k:k + 2], stack.pair_covariance(k), stack.grid, x, y, dx, dy,
+                               tracking_sigma * float(stack.grid.pixel_width))
+    interval = float(stack.times[k + 1] - stack.times[k])
+    east, north = (np.asarray(a) for a in grid_to_east_north(stack.grid.projection, x, y, dx / interval,
+                                                              dy / interval))
+    rates = None
+    if good.sum() >= 3:
+        index = np.nonzero(good)[0]
+        rates = deformation(np.stack([x, y], 1)[index], np.stack([dx, dy], 1)[index] / interval,
+                            sigma[index] / interval)  # (relative errors: conservative)
+        rates = replace(rates, triangles=index[rates.triangles])
+    return TrackedPair(k, interval, pair.status, x, y, dx, dy, sigma, east, north, rates)
+
+
+def _follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, progress: bool) -> FloeRecords:
+    """Floe records of the lattice points of the first image, followed from image to image while their tracking
+    stays good: grid position -> latitude, longitude and each image's own pixel and scan line."""
+    floe_row, floe_column = rows.copy(), columns.copy()
+    alive = np.ones(rows.size, bool)
+    fixes = [(np.arange(rows.size), 0, rows.copy(), columns.copy())]
+    for k in tqdm(range(len(stack.names) - 1), desc="follow floes", disable=not progress, leave=False):
+        chained = track(stack.values[k], stack.values[k + 1], options, points=(floe_row, floe_column),
+                        valid_first=stack.valid[k], valid_second=stack.valid[k + 1])
+        alive &= chained.good
+        floe_row = np.where(alive, floe_row + np.nan_to_num(chained.d_row), np.nan)
+        floe_column = np.where(alive, floe_column + np.nan_to_num(chained.d_column), np.nan)
+        fixes.append((np.nonzero(alive)[0], k + 1, floe_row[alive], floe_column[alive]))
+    columns_out = {k: [] for k in ("floe", "time", "image", "pixel", "scan", "latitude", "longitude")}
+    for ids, k, fix_rows, fix_columns in fixes:
+        x, y = stack.grid.to_xy(fix_rows, fix_columns)
+        lat, lon = (np.asarray(a) for a in stack.grid.projection.inverse(x, y))
+        pixel, scan = (np.asarray(a) for a in stack.models[k].inverse(lat, lon))
+        columns_out["floe"] += [f"G{i:04d}" for i in ids]
+        columns_out["time"].append(np.full(ids.size, stack.times[k]))
+        columns_out["image"] += [stack.names[k]] * ids.size
+        for name, value in (("pixel", pixel), ("scan", scan), ("latitude", lat), ("longitude", lon)):
+            columns_out[name].append(value)
+    arrays = {k: (np.concatenate(v) if k not in ("floe", "image") else np.array(v)) for k, v in columns_out.items()}
+    order = np.lexsort((arrays["time"], arrays["floe"]))
+    return FloeRecords(**{k: v[order] for k, v in arrays.items()}, epoch=stack.epoch)
+
+
+def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
+                   progress: bool = False) -> TrackedSequence:
+    """Track the ice between consecutive remapped images (``tracking_sigma``: pixels, σ of a tracked
+    displacement, combined with both images' geolocation σ)."""
+    options = options or TrackingOptions()
+    if len(stack.names) < 2:
+        raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
+    rows, columns = grid_points(stack.grid.shape, options)
+    lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
+    pairs = tuple(_track_pair(stack, k, options, tracking_sigma)
+                  for k in tqdm(range(len(stack.names) - 1), desc="track", disable=not progress, leave=False))
+    return TrackedSequence(pairs, lattice, _follow_floes(stack, rows, columns, options, progress), options)
+
+
+def track_report(stack: RemappedStack, tracked: TrackedSequence) -> str:
+    lattice, options, records = tracked.lattice, tracked.options, tracked.records
+    lines = [f"tracked {len(tracked.pairs)} image pairs on a {lattice.n_rows} x {lattice.n_columns} lattice "
+             f"(patch {options.patch} px, search ±{options.search} px):"]
+    for pair in tracked.pairs:
+        good = pair.good
+        speed = np.hypot(pair.dx[good], pair.dy[good]) / pair.interval * 86.4
+        lines.append(f"  {stack.names[pair.first]} -> {stack.names[pair.first + 1]}: {good.sum()} of {good.size} "
+                     f"vectors good, median speed {np.median(speed) if speed.size else np.nan:.1f} km/day; rejected: "
+                     + ", ".join(f"{(pair.status == s).sum()} {STATUS[s]}" for s in STATUS
+                                 if s != GOOD and (pair.status == s).any()))
+    lines.append(f"  {len(set(records.floe.tolist()))} floes followed, {len(records)} fixes")
+    return "\n".join(lines)
+
+
+def _write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: Path) -> list[Path]:
+    """``drift_<a>_<b>.nc`` (CF-NetCDF on the lattice) and its figure ``drift_<a>_<b>.png``."""
+    good, shape = pair.good, lattice.shape
+    a, b = stack.names[pair.first], stack.names[pair.first + 1]
+
+    def field(values):
+        return np.where(good, values, np.nan).reshape(shape)
+
+    fields = {"dX": field(pair.dx), "dY": field(pair.dy), "dX_uncertainty": field(pair.sigma[:, 0]),
+              "dY_uncertainty": field(pair.sigma[:, 1]), "status_flag": pair.status.reshape(shape),
+              "u_east": field(pair.u_east), "v_north": field(pair.v_north)}
+    start = np.stack([pair.x, pair.y], 1)
+    return [write_drift_netcdf(out / f"drift_{a}_{b}.nc", lattice, fields, stack.times[pair.first],
+                               stack.times[pair.first + 1], stack.epoch, STATUS, title=f"Sea-ice drift {a} to {b}",
+                               deformation=pair.deformation),
+            plot_vectors(out / f"drift_{a}_{b}.png", start[good], np.stack([pair.dx, pair.dy], 1)[good],
+                         f"Tracked drift {a} -> {b} ({good.sum()} vectors)",
+                         f"{pair.interval / 86400:.2f} days; ellipses: 95 % from the stated σ (geolocation and "
+                         "tracking)", background=start[~good],
+                         covariances=np.stack([np.diag(v) for v in pair.sigma[good] ** 2]) if good.any() else None)]
+
+
+def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str | os.PathLike) -> tuple[Path, ...]:
+    """Per pair ``drift_<a>_<b>.nc`` and ``.png`` (vectors with 95 % ellipses); ``floes.csv`` and
+    ``trajectories.geojson`` for the whole sequence."""
+    out = Path(out_dir)
+    files = [path for pair in tracked.pairs for path in _write_pair(stack, tracked.lattice, pair, out)]
+    records = tracked.records
+    files.append(write_records(out / "floes.csv", records))
+    files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
+                                            records.latitude, records.longitude, records.epoch))
+    return tuple(files)
+
+
+def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
+              options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
+              progress: bool = True) -> Step[TrackedSequence]:
+    """Track the ice through the stack written by :func:`run_remap` (:func:`track_sequence`) and write it
+    (:func:`write_tracked`)."""
+    stack = load_remapped(remapped_dir)
+    if len(stack.names) < 2:
+        raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
+    tracked = track_sequence(stack, options, tracking_sigma, progress)
+    return Step(write_tracked(stack, tracked, out_dir), track_report(stack, tracked), tracked)
+
+
+# ------------------------------------------------------------------------------------------------ velocities
+
+
+@dataclass(frozen=True)
+class FloeKinematics:
+    """Velocities and what derives from them, for a floe record file.
+
+    Attributes:
+        records: the floe records. x, y: ``(n,)`` m, their map positions. velocities: between consecutive fixes.
+        boxes: box averages (Figure 4-7). series: daily box series (Figure 4-5). box_size: m.
+        deformation: ``(time, interval, rates)`` (s, s, the triangles' strain rates) per fix time with at least
+            three floes.
+    """
+
+    records: FloeRecords
+    x: np.ndarray
+    y: np.ndarray
+    velocities: Velocities
+    boxes: BoxAverages
+    series: dict
+    box_size: float
+    deformation: tuple[tuple[float, float, Deformation], ...]
+
+
+def _deformations(v: Velocities, velocity_sigma: float | None):
+    """Deformation of the floes' Delaunay triangles at every fix time with at least three floes."""
+    out = []
+    for t in np.unique(v.time):
+        at = v.time == t
+        if at.sum() < 3:
+            continue
+        sigma = velocity_sigma if velocity_sigma is not None else np.sqrt(2) * 1000.0 / v.interval[at]
+        rates = deformation(np.stack([v.x[at], v.y[at]], 1), np.stack([v.u_grid[at], v.v_grid[at]], 1), sigma)
+        out.append((float(t), float(v.interval[at][0]), rates))
+    return tuple(out)
+
+
+def floe_kinematics(records: FloeRecords, projection: str = "nsidc-north", box_size: float = 50_000.0,
+                    velocity_sigma: float | None = None) -> FloeKinematics:
+    """Velocities, box averages, daily box series and deformation of floe records.
+
+    Args:
+        projection: the map grid whose axes the grid-relative components follow (``nsidc-north``/``-south``).
+        box_size: m. velocity_sigma: m/s of each velocity component for the deformation σ (default: the
+            positions' σ of 1 km over each interval, √2·1000/Δt).
+    """
+    metric = named_projection(projection, (np.degrees(records.latitude[0]), np.degrees(records.longitude[0])))
+    x, y = (np.asarray(a) for a in metric.forward(records.latitude, records.longitude))
+    v = velocities(records.floe, records.time, x, y, metric)
+    origin = (np.floor(v.x.min() / box_size) * box_size, np.floor(v.y.min() / box_size) * box_size)
+    return FloeKinematics(records, x, y, v, box_averages(v.x, v.y, v.u_grid, v.v_grid, box_size, origin),
+                          box_time_series(v, box_size, origin), box_size, _deformations(v, velocity_sigma))
+
+
+def _deformation_columns(result: FloeKinematics) -> dict:
+    v, epoch = result.velocities, result.records.epoch
+    rows = {k: [] for k in ("start", "end", "x_m", "y_m", "divergence_s", "sigma_divergence_s", "shear_s",
+                            "sigma_shear_s", "vorticity_s", "sigma_vorticity_s")}
+    for time, interval, rates in result.deformation:
+        at = v.time == time
+        centre = np.stack([v.x[at], v.y[at]], 1)[rates.triangles].mean(axis=1)
+        rows["start"] += [time_after(epoch, time - interval / 2)] * len(rates.area)
+        rows["end"] += [time_after(epoch, time + interval / 2)] * len(rates.area)
+        rows["x_m"].append(centre[:, 0])
+        rows["y_m"].append(centre[:, 1])
+        for name in ("divergence", "shear", "vorticity"):
+            rows[f"{name}_s"].append(getattr(rates, name))
+            rows[f"sigma_{name}_s"].append(getattr(rates, f"sigma_{name}"))
+    return {k: np.concatenate(val) if k not in ("start", "end") else np.array(val) for k, val in rows.items()}
+
+
+def write_kinematics(result: FloeKinematics, out_dir: str | os.PathLike) -> tuple[Path, ...]:
+    """``velocities.csv``, ``box_averages.csv`` and ``.png``, ``velocity_series.png``, ``deformation.csv``,
+    ``trajectories.geojson`` and ``trajectories.png``."""
+    out = Path(out_dir)
+    v, boxes, records = result.velocities, result.boxes, result.records
+    files = [write_csv(out / "velocities.csv", {
+        "floe_id": v.floe, "time": np.array([time_after(records.epoch, t) for t in v.time]), "interval_s": v.interval,
+        "x_m": v.x, "y_m": v.y, "u_grid_m_s": v.u_grid, "v_grid_m_s": v.v_grid, "u_east_m_s": v.u_east,
+        "v_north_m_s": v.v_north}),
+        write_csv(out / "box_averages.csv", {"x_m": boxes.x, "y_m": boxes.y, "u_grid_m_s": boxes.u,
+                                             "v_grid_m_s": boxes.v, "sigma_u_m_s": boxes.sigma_u,
+                                             "sigma_v_m_s": boxes.sigma_v, "count": boxes.count}),
+        plot_box_averages(out / "box_averages.png", boxes, f"Box-averaged velocity ({result.box_size / 1000:.0f} "
+                          "km boxes) with ±1σ rectangles", background=np.stack([result.x, result.y], 1))]
+    busiest = dict(sorted(result.series.items(), key=lambda item: -item[1]["count"].sum())[:6])
+    files.append(plot_velocity_series(out / "velocity_series.png", busiest, "Daily box-averaged velocity",
+                                      records.epoch[:10]))
+    if result.deformation:
+        files.append(write_csv(out / "deformation.csv", _deformation_columns(result)))
+    files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
+                                            records.latitude, records.longitude, records.epoch))
+    files.append(plot_trajectories(out / "trajectories.png", records.floe, result.x, result.y,
+                                   "Floe trajectories (start: dot)"))
+    return tuple(files)
+
+
+def kinematics_report(result: FloeKinematics) -> str:
+    v = result.velocities
+    speed = v.speed * 86.4
+    triangles = sum(len(rates.area) for *_, rates in result.deformation)
+    return (f"{len(v.floe)} velocities of {len(set(result.records.floe.tolist()))} floes: median speed "
+            f"{np.median(speed):.1f} km/day (max {speed.max():.1f}); {len(result.boxes.x)} boxes of "
+            f"{result.box_size / 1000:.0f} km; {triangles} deformation triangles")
+
+
+def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, projection: str = "nsidc-north",
+                   box_size: float = 50_000.0, velocity_sigma: float | None = None,
+                   images=None) -> Step[FloeKinematics]:
+    """Velocities, box averages (Figure 4-7), daily box series (Figure 4-5), deformation and trajectories from a
+    floe record file (manual or from ``seaice track``; ``images``: the known image ids, for validation); see
+    :func:`floe_kinematics` for the other arguments."""
+    result = floe_kinematics(read_records(records_path, images=images), projection, box_size, velocity_sigma)
+    return Step(write_kinematics(result, out_dir), kinematics_report(result), result)
+
+
+# ------------------------------------------------------------------------------------------------ film
+
+
+def _floe_pixels(records_path, stack: RemappedStack):
+    """Per image, the ``(n, 2)`` grid (row, column) of the floes of a record file."""
+    floes = read_records(records_path, images=set(stack.names))
+    points = []
+    for name in stack.names:
+        at = floes.image == name
+        x, y = stack.grid.projection.forward(floes.latitude[at], floes.longitude[at])
+        points.append(np.stack([np.asarray(a) for a in stack.grid.to_pixel(x, y)], 1))
+    return points
+
+
+def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land_mask=None, records=None,
+              fps: float = 2.0, scale: int = 2) -> Step[None]:
+    """A time-lapse film (GIF or MP4) of the remapped sequence with date labels, the land filled (``land_mask``:
+    a ``.npy`` bool array on the grid) and the tracked floes of a record file marked."""
+    stack = load_remapped(remapped_dir)
+    land = None
+    if land_mask is not None:
+        land = np.load(land_mask)
+        if land.shape != stack.grid.shape:
+            raise SeaiceError(f"{land_mask}: land mask shape {land.shape} is not the grid's {stack.grid.shape}")
+    points = None if records is None else _floe_pixels(records, stack)
+    labels = [time_after(stack.epoch, t)[:16].replace("T", " ") for t in stack.times]
+    frames = render_frames(stack.values, labels, land, points, scale)
+    path = write_movie(out_path, frames, fps)
+    return Step((path,), f"film of {len(frames)} frames ({frames.shape[2]} x {frames.shape[1]} pixels) -> {path}",
+                None)
+
+
+# ------------------------------------------------------------------------------------------------ simulation
+
+
+SIMULATED_GRID = {"projection": "nsidc-north", "centre_deg": [74.0, -85.0], "pixel_m": [2500.0, 2500.0],
+                  "shape": [150, 150]}
+"""The map grid of :func:`write_simulated_sequence`'s projects: 375 km square at 2.5 km, EPSG:3413."""
+
+
+def write_simulated_sequence(out_dir: str | os.PathLike, seed: int = 0, images: int = 6, size: int = 256,
+                             clouds: bool = False, sequence=None) -> Path:
+    """Simulate a Lancaster-Sound-like sequence (:func:`~seaice_jax.simulate.satellite.simulate_sequence`) and
+    write it as a project with ``land_mask.npy`` on its grid (for films)."""
+    sequence = sequence or simulate_sequence(seed, n_images=images, size=size, clouds=clouds)
+    out = Path(out_dir)
+    grid = make_grid(**{k: SIMULATED_GRID[k] for k in ("projection", "centre_deg", "pixel_m", "shape")})
+    with atomic_path(out / "land_mask.npy") as temporary, open(temporary, "wb") as stream:
+        np.save(stream, land_mask(sequence.scene, grid))
+    return write_sequence(sequence, out, SIMULATED_GRID)

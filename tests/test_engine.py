@@ -1,0 +1,234 @@
+"""The adjustment engine against closed forms, between its two backends, and by Monte Carlo."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from seaice_jax.adjust.engine import INSEPARABLE, EngineOptions, solve
+from seaice_jax.adjust.lsq import Observations, make_solver
+from seaice_jax.adjust.problem import Problem, ResidualBlock
+from seaice_jax.adjust.quality import critical_value
+from seaice_jax.adjust.variance import robust_adjustment, variance_components
+
+
+def _image_point(theta, point, row):
+    """A 2-D similarity per image (shift x, y, rotation, log scale): computed image position − observed."""
+    shift, angle, scale = theta[:2], theta[2], jnp.exp(theta[3])
+    rotation = jnp.array([[jnp.cos(angle), -jnp.sin(angle)], [jnp.sin(angle), jnp.cos(angle)]])
+    return scale * rotation @ point + shift - row["observed"]
+
+
+def _control(_, point, row):
+    return point - row["known"]
+
+
+def _prior(theta, _, row):
+    return theta - row["value"]
+
+
+def small_block(rng, images=3, points=12, noise=1.0, control_error=0.0):
+    """Images of 2-D points with similarity distortions; five control points; a prior on image 0.
+
+    Point p is seen on images p mod 3 and the next, and odd points also on the one after (point 6: images 0 and 1
+    only).
+    """
+    truth_theta = np.concatenate([[rng.normal(0, 5, 2).tolist() + [rng.normal(0, 0.05), rng.normal(0, 0.01)]]
+                                  for _ in range(images)]).reshape(-1)
+    truth_points = rng.uniform(-500, 500, (points, 2))
+    rows, point_index, image_index = [], [], []
+    for p in range(points):
+        first = p % images
+        seen = [first, (first + 1) % images] + ([(first + 2) % images] if p % 2 else [])
+        for i in seen:
+            t = truth_theta[4 * i:4 * i + 4]
+            clean = np.asarray(_image_point(jnp.asarray(t), jnp.asarray(truth_points[p]), {"observed": jnp.zeros(2)}))
+            rows.append(clean + rng.normal(0, noise, 2))
+            point_index.append(p)
+            image_index.append(i)
+    index = np.array([[4 * i + k for k in range(4)] for i in image_index])
+    known = truth_points[:5] + rng.normal(0, noise, (5, 2))
+    known[2, 0] += control_error
+    blocks = {
+        "image": ResidualBlock(_image_point, {"observed": jnp.asarray(np.array(rows))},
+                               jnp.full((len(rows), 2), noise), jnp.asarray(index), jnp.asarray(point_index)),
+        "control": ResidualBlock(_control, {"known": jnp.asarray(known)}, jnp.full((5, 2), noise),
+                                 jnp.zeros((5, 0), int), jnp.arange(5)),
+        "prior": ResidualBlock(_prior, {"value": jnp.zeros(4)}, jnp.full((4, 1), 10.0), jnp.arange(4)[:, None]),
+    }
+    start_points = truth_points + rng.normal(0, 20, truth_points.shape)
+    return Problem(blocks, jnp.zeros(4 * images), jnp.asarray(start_points)), truth_theta, truth_points
+
+
+def test_schur_and_dense_backends_agree(rng):
+    problem, _, _ = small_block(rng)
+    cross = [(3, 4), (5, 9)]
+    dense = solve(problem, EngineOptions("dense"), cross_points=cross)
+    schur = solve(problem, EngineOptions("schur"), cross_points=cross)
+    assert bool(dense.converged) and bool(schur.converged)
+    assert dense.degrees_of_freedom == schur.degrees_of_freedom > 0
+
+    def close(a, b):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-8, atol=1e-8 * float(np.max(np.abs(b))))
+
+    close(schur.parameters["theta"], dense.parameters["theta"])
+    close(schur.parameters["points"], dense.parameters["points"])
+    close(schur.cofactor, dense.cofactor)
+    close(schur.point_cofactor, dense.point_cofactor)
+    close(schur.point_pair_cofactor, dense.point_pair_cofactor)
+    close(schur.sigma0, dense.sigma0)
+    for group in ("image", "control", "prior"):
+        close(schur.redundancy[group], dense.redundancy[group])
+        close(schur.standardized_residuals[group], dense.standardized_residuals[group])
+    total = sum(float(np.sum(r)) for r in dense.redundancy.values())
+    assert total == pytest.approx(dense.degrees_of_freedom, rel=1e-9)
+
+
+def test_point_cofactors_match_the_inverse_normal_matrix(rng):
+    """Independent truth: the full (JᵀJ)⁻¹ from a finite-difference Jacobian, solved by numpy."""
+    problem, _, _ = small_block(rng)
+    result = solve(problem, EngineOptions("schur"))
+    theta, points = np.asarray(result.parameters["theta"]), np.asarray(result.parameters["points"])
+
+    def whitened(x):
+        t, p = jnp.asarray(x[:theta.size]), jnp.asarray(x[theta.size:].reshape(points.shape))
+        out = []
+        for block in problem.blocks.values():
+            pts = p[block.point_index] if block.point_index is not None else jnp.zeros((block.rows, 0))
+            out.append((jax.vmap(block.function)(t[block.global_index], pts, block.data) / block.sigma).reshape(-1))
+        return np.asarray(jnp.concatenate(out))
+
+    x = np.concatenate([theta, points.reshape(-1)])
+    step = 1e-6 * np.maximum(np.abs(x), 1.0)
+    jacobian = np.stack([(whitened(x + h) - whitened(x - h)) / (2 * h[k]) for k, h in enumerate(np.diag(step))], 1)
+    inverse = np.linalg.inv(jacobian.T @ jacobian)
+    tolerance = {"rtol": 1e-5, "atol": 1e-7 * np.abs(inverse).max()}
+    np.testing.assert_allclose(result.cofactor, inverse[:theta.size, :theta.size], **tolerance)
+    blocks = inverse[theta.size:, theta.size:].reshape(points.shape[0], 2, points.shape[0], 2)
+    diagonal = np.arange(points.shape[0])
+    np.testing.assert_allclose(result.point_cofactor, blocks[diagonal, :, diagonal], **tolerance)
+
+
+@pytest.mark.parametrize("backend", ["dense", "schur"])
+def test_a_control_point_blunder_is_flagged_named_and_signed(rng, backend):
+    problem, _, _ = small_block(rng, control_error=30.0)  # 30 σ on control point 2's x
+    result = solve(problem, EngineOptions(backend))
+    flags = result.flagged()
+    assert flags and (flags[0].group, flags[0].row, flags[0].component) == ("control", 2, 0)
+    # computed − observed residual; the estimated error has the sign of the planted one (observed − true)
+    assert float(result.residuals["control"][2, 0]) < 0
+    redundancy = float(result.redundancy["control"][2, 0])
+    assert flags[0].estimated_error == pytest.approx(30.0, abs=4.0 / np.sqrt(redundancy))
+    assert flags[0].minimal_detectable_bias < 30.0
+
+
+@pytest.mark.parametrize("backend", ["dense", "schur"])
+def test_a_blunder_on_a_point_seen_twice_is_named_inseparable(rng, backend):
+    problem, _, _ = small_block(rng)
+    image = problem.blocks["image"]
+    rows = np.nonzero(np.asarray(image.point_index) == 6)[0]  # seen on two images only
+    observed = image.data["observed"].at[rows[0], 0].add(12.0)
+    bad = Problem({**problem.blocks, "image": ResidualBlock(image.function, {"observed": observed}, image.sigma,
+                                                            image.global_index, image.point_index)},
+                  problem.start, problem.points)
+    result = solve(bad, EngineOptions(backend))
+    flags = [f for f in result.flagged() if f.group == "image" and f.row in rows]
+    assert len(flags) == 2 and not any(f.separable for f in flags)
+    assert abs(abs(flags[0].w) - abs(flags[1].w)) < 0.05 * abs(flags[0].w)
+    assert {flags[0].confounded_with[1], flags[1].confounded_with[1]} == set(rows.tolist())
+    assert float(np.max(result.w_correlation["image"][rows])) > INSEPARABLE
+    clean = solve(problem, EngineOptions(backend))
+    other = image.data["observed"].at[rows[0] + 2, 0].add(12.0)  # a point seen on three images
+    single = Problem({**problem.blocks, "image": ResidualBlock(image.function, {"observed": other}, image.sigma,
+                                                               image.global_index, image.point_index)},
+                     problem.start, problem.points)
+    separable = [f for f in solve(single, EngineOptions(backend)).flagged() if f.row == rows[0] + 2]
+    assert separable and separable[0].separable and not clean.flagged()
+
+
+def test_variance_components_recover_a_planted_sigma_ratio():
+    """Two groups measuring a line; group "b" has twice the σ it is given. 30 realizations: the estimated variance
+    factors average to 4 and 1, and their reported σ matches their scatter."""
+    t = np.linspace(0, 1, 60)
+
+    def line(theta, _, row):
+        return jnp.atleast_1d(theta[0] + theta[1] * row["t"] - row["y"])
+
+    rng = np.random.default_rng(8)
+    factors, sigmas = [], []
+    for _ in range(30):
+        blocks = {g: ResidualBlock(line, {"t": jnp.asarray(t), "y": jnp.asarray(1 + 2 * t + rng.normal(0, s, t.size))},
+                                   jnp.full((t.size, 1), 0.1), jnp.broadcast_to(jnp.arange(2), (t.size, 2)))
+                  for g, s in (("a", 0.1), ("b", 0.2))}
+        result = variance_components(Problem(blocks, jnp.zeros(2)))
+        factors.append([result.variance_components[g].value for g in "ab"])
+        sigmas.append([result.variance_components[g].sigma for g in "ab"])
+    factors, sigmas = np.array(factors), np.array(sigmas)
+    np.testing.assert_allclose(factors.mean(axis=0), [1.0, 4.0], atol=3 * sigmas.mean(axis=0)[1] / np.sqrt(30))
+    np.testing.assert_allclose(factors.std(axis=0, ddof=1) / sigmas.mean(axis=0), 1.0, atol=0.35)
+    assert result.variance_components["b"].p_value < 1e-3
+
+
+@pytest.mark.parametrize("kind", ["huber", "danish"])
+def test_robust_reweighting_removes_a_blunder(rng, kind):
+    t = np.linspace(0, 1, 40)
+    y = 1 + 2 * t + rng.normal(0, 0.1, t.size)
+
+    def line(theta, _, row):
+        return jnp.atleast_1d(theta[0] + theta[1] * row["t"] - row["y"])
+
+    def problem(values):
+        return Problem({"y": ResidualBlock(line, {"t": jnp.asarray(t), "y": jnp.asarray(values)},
+                                           jnp.full((t.size, 1), 0.1), jnp.broadcast_to(jnp.arange(2), (t.size, 2)))},
+                       jnp.zeros(2))
+
+    clean = solve(problem(y))
+    bad = y.copy()
+    bad[5] += 3.0  # 30 σ
+    plain = solve(problem(bad))
+    robust = robust_adjustment(problem(bad), kind)
+    sigma = np.sqrt(np.diag(np.asarray(clean.cofactor)))
+    shift = np.abs(np.asarray(plain.parameters["theta"]) - np.asarray(clean.parameters["theta"])) / sigma
+    remaining = np.abs(np.asarray(robust.parameters["theta"]) - np.asarray(clean.parameters["theta"])) / sigma
+    assert shift.max() > 3.0 and remaining.max() < (0.3 if kind == "danish" else 1.0)
+    weights = np.asarray(robust.robust_weights["y"])[:, 0]
+    assert weights[5] < (1e-3 if kind == "danish" else 0.1) and np.delete(weights, 5).min() > 0.3
+    # the down-weighted observation keeps its whole error as residual (computed − observed = −3); the w-tests of
+    # the final weights pass for the others
+    assert float(robust.residuals["y"][5, 0]) == pytest.approx(-3.0, abs=0.2)
+    assert np.all(np.abs(np.delete(np.asarray(robust.standardized_residuals["y"])[:, 0], 5)) < float(critical_value()))
+
+
+def test_a_second_solver_of_the_same_shape_compiles_nothing(rng):
+    from seaice_jax.adjust import engine
+
+    def decay(p, _):
+        return {"y": p["a"] * jnp.exp(-p["b"] * jnp.linspace(0, 2, 9))}
+
+    def fit(a):
+        solver = make_solver(decay, {"a": jnp.asarray(a), "b": jnp.asarray(1.0)},
+                             {"y": Observations(jnp.zeros(9), 0.1)})
+        return solver({"y": np.asarray(decay({"a": 2.0, "b": 1.3}, None)["y"]) + rng.normal(0, 0.1, 9)})
+
+    fit(1.0)
+    before = engine._solve._cache_size()
+    result = fit(1.5)
+    assert engine._solve._cache_size() == before and bool(result.converged)
+
+
+def test_under_vmap_each_lane_stops_on_its_own():
+    """A lane that needs damping does not make an easy lane take more steps than it takes alone."""
+    x = jnp.linspace(0.0, 4.0, 12)
+
+    def model(p, _):
+        return {"y": p["a"] * jnp.exp(-p["b"] * x)}
+
+    truth = {"a": jnp.asarray(2.0), "b": jnp.asarray(0.7)}
+    solver = make_solver(model, truth, {"y": Observations(jnp.zeros(12), 0.01)})
+    observed = np.asarray(model(truth, None)["y"]) + np.random.default_rng(3).normal(0, 0.01, 12)
+    starts = {"a": jnp.array([2.1, 40.0]), "b": jnp.array([0.72, 9.0])}
+    both = jax.vmap(lambda s: solver({"y": observed}, start=s))(starts)
+    alone = solver({"y": observed}, start={"a": jnp.asarray(2.1), "b": jnp.asarray(0.72)})
+    assert bool(jnp.all(both.converged))
+    assert int(both.steps[0]) == int(alone.steps) < int(both.steps[1])
+    np.testing.assert_allclose(both.parameters["b"], float(alone.parameters["b"]), rtol=1e-9)

@@ -1,0 +1,85 @@
+"""The engine on the NIST StRD nonlinear-regression suite (certified values, both certified starts).
+
+All 27 problems share one compiled solve: each is padded to 256 observations (σ = inf rows), 9 parameters (unused
+ones touch no observation: the engine drops their zero columns and leaves them at their start, 0) and 2 predictors,
+and one residual function picks the problem's model by its index (``lax.switch``); both starts run vmapped.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from nist_strd import NAMES, log_relative_error, model_function, read
+
+from seaice_jax._shapes import pad
+from seaice_jax.adjust.engine import EngineOptions, solve
+from seaice_jax.adjust.problem import Problem, ResidualBlock
+
+ROWS, WIDTH, PREDICTORS = 256, 9, 2
+OPTIONS = EngineOptions("dense", max_steps=2000)
+REFUSED_FROM_START_1 = {"MGH10", "MGH17", "BoxBOD"}
+"""Start 1 of these leads the damped Gauss-Newton towards a limit at infinity (a parameter the data stop
+determining): the engine must name the undetermined parameters, or (MGH10, still creeping along its valley after
+2000 steps) say it has not converged; never return it as a solution."""
+PROBLEMS = tuple(read(name) for name in NAMES)
+
+
+def _branch(problem):
+    model = model_function(problem.expression, problem.parameters, problem.predictors)
+    k, p = len(problem.parameters), len(problem.predictors)
+    return lambda theta, x: model(theta[:k], x[:p])
+
+
+BRANCHES = tuple(_branch(problem) for problem in PROBLEMS)
+
+
+def residual(theta, _, row):
+    """Computed − observed of one observation of problem ``row["problem"]``."""
+    return jnp.atleast_1d(jax.lax.switch(row["problem"], BRANCHES, theta, row["x"]) - row["y"])
+
+
+def suite_problem(index, start):
+    problem = PROBLEMS[index]
+    n, k = problem.y.size, len(problem.parameters)
+    x = np.zeros((n, PREDICTORS))
+    x[:, :problem.x.shape[1]] = problem.x
+    data = {"x": jnp.asarray(pad(x, ROWS, 1.0)), "y": jnp.asarray(pad(problem.observed, ROWS, 0.0)),
+            "problem": jnp.full(ROWS, index)}
+    block = ResidualBlock(residual, data, jnp.asarray(pad(np.ones((n, 1)), ROWS, np.inf)),
+                          jnp.broadcast_to(jnp.arange(WIDTH), (ROWS, WIDTH)))
+    return Problem({"y": block}, jnp.asarray(pad(problem.starts[start], WIDTH, 0.0))), n - k
+
+
+def fit(name):
+    """``(problem, result, undetermined names per start)``: both starts of one problem (vmapped)."""
+    index = NAMES.index(name)
+    problem = PROBLEMS[index]
+    k = len(problem.parameters)
+    names = tuple(f"b{j + 1}" for j in range(WIDTH))
+    pair = [suite_problem(index, s)[0] for s in range(2)]
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *pair)
+    result = jax.vmap(lambda p: solve(p, OPTIONS, names, dof=problem.y.size - k))(stacked)
+    result = jax.tree_util.tree_map(lambda a: a[:, :k, :k] if a.ndim == 3 and a.shape[1:] == (WIDTH, WIDTH) else a,
+                                    result)
+    undetermined = [[n for n in jax.tree_util.tree_map(lambda a, s=s: a[s], result).undetermined_parameters()
+                     if n in problem.parameters] for s in range(2)]
+    estimates = np.asarray(result.parameters["theta"])[:, :k]
+    return problem, estimates, np.sqrt(np.diagonal(np.asarray(result.covariance), axis1=1, axis2=2)), \
+        np.asarray(result.converged), undetermined
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_certified_values_from_both_starts(name):
+    problem, estimates, sigmas, converged, undetermined = fit(name)
+    for s in range(2):
+        if name in REFUSED_FROM_START_1 and s == 0:
+            assert undetermined[s] or not converged[s], f"{name} start 1: a wrong answer without refusal"
+            continue
+        assert converged[s] and not undetermined[s], (name, s, undetermined[s])
+        estimate_lre = log_relative_error(estimates[s], problem.certified)
+        sigma_lre = log_relative_error(sigmas[s], problem.certified_sigma)
+        assert estimate_lre.min() >= 6.0, (name, s, estimate_lre)
+        # Lanczos1's data (residuals ~1e-13 of values ~1, y printed to 13 digits) hold σ̂0 to about 3 digits in
+        # float64: at the exact minimum of the float64 data, computed in 50-digit arithmetic, the standard
+        # deviations' LRE is 3.37; float64 evaluation of the residuals adds ±0.3
+        assert sigma_lre.min() >= (3.0 if name == "Lanczos1" else 4.0), (name, s, sigma_lre)

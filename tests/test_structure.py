@@ -1,0 +1,180 @@
+"""The package's shape: imports only go down the layers, no private name crosses a module, the README's module table
+lists exactly the modules in the tree, and every Python snippet of the README runs."""
+
+import ast
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "seaice_jax"
+README = ROOT / "README.md"
+
+LAYERS = {"geometry": 1, "sensors": 2, "adjust": 3, "imagery": 4, "drift": 4, "io": 5, "simulate": 5,
+          "workflows": 6, "report": 6, "cli": 7}
+"""Layer of each subpackage (or top-level module); modules at the package base not named here are layer 0."""
+
+
+def _modules():
+    """``{dotted name: path}`` of every module of the package."""
+    found = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def _layer(module: str) -> int:
+    parts = module.split(".")
+    return LAYERS.get(parts[1], 0) if len(parts) > 1 else 0
+
+
+def _imports(path: Path, module: str):
+    """``(line, imported module, imported names)`` of every import statement (also inside functions)."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name, ()
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package.split(".")[:len(package.split(".")) - node.level + 1] + ([base] if base
+                                                                                                   else []))
+            yield node.lineno, base, tuple(alias.name for alias in node.names)
+
+
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_layer_rule_is_checkable():
+    """The walker sees the package's own imports (a broken walker would make the next tests vacuous)."""
+    seen = {target for module, path in _modules().items() for _, target, _ in _imports(path, module)}
+    assert "seaice_jax.geometry.earth" in seen and "seaice_jax.errors" in seen
+    assert _layer("seaice_jax.workflows.radar_block") > _layer("seaice_jax.io.project") > _layer(
+        "seaice_jax.drift.kinematics") > _layer("seaice_jax.adjust.lsq") > _layer("seaice_jax.sensors.slar") > _layer(
+        "seaice_jax.geometry.scan") > _layer("seaice_jax.errors")
+
+
+def test_no_import_goes_up_a_layer():
+    problems = []
+    for module, path in _modules().items():
+        if module == "seaice_jax":  # the public face re-exports from every layer
+            continue
+        for line, target, _ in _imports(path, module):
+            if target.startswith("seaice_jax.") and _layer(target) > _layer(module):
+                problems.append(f"{path.relative_to(ROOT)}:{line}: {module} (layer {_layer(module)}) imports "
+                                f"{target} (layer {_layer(target)})")
+    assert not problems, "\n".join(problems)
+
+
+def test_no_private_name_crosses_a_module():
+    """No ``from module import _name`` between modules (a private *module* of the package, such as ``_config``, may
+    be imported)."""
+    modules = _modules()
+    problems = []
+    for module, path in modules.items():
+        for line, target, names in _imports(path, module):
+            if target.startswith("seaice_jax") and target != module:
+                problems += [f"{path.relative_to(ROOT)}:{line}: imports {name} from {target}" for name in names
+                             if _is_private(name) and f"{target}.{name}" not in modules]
+    assert not problems, "\n".join(problems)
+
+
+def _own_members(tree) -> set[str]:
+    """Names a module defines on its classes and instances: methods, class fields, ``self.x = ...`` targets."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ClassDef):
+            for item in node.body:
+                if isinstance(item, ast.FunctionDef | ast.AsyncFunctionDef):
+                    names.add(item.name)
+                elif isinstance(item, ast.AnnAssign) and isinstance(item.target, ast.Name):
+                    names.add(item.target.id)
+        elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+            names.add(node.attr)
+    return names
+
+
+def test_no_private_attribute_of_another_module():
+    """``thing._name`` only where this module defines ``_name`` (e.g. not ``model._forward`` of a scan model from
+    a simulator)."""
+    problems = []
+    for path in _modules().values():
+        tree = ast.parse(path.read_text())
+        own = _own_members(tree)
+        problems += [f"{path.relative_to(ROOT)}:{node.lineno}: .{node.attr}" for node in ast.walk(tree)
+                     if isinstance(node, ast.Attribute) and _is_private(node.attr) and node.attr not in own]
+    assert not problems, "\n".join(problems)
+
+
+def _module_table():
+    """The backquoted module paths in the first column of the README's module table."""
+    text = README.read_text()
+    section = text.split("## What is in it now", 1)[1].split("\n## ", 1)[0]
+    listed = []
+    for row in section.splitlines():
+        if row.startswith("| `"):
+            listed += re.findall(r"`([\w/]+\.py)`", row.split("|")[1])
+    return listed
+
+
+def test_readme_module_table_matches_the_tree():
+    """Every public module (not ``__init__``, not ``_private``) is listed exactly once, and nothing else."""
+    tree = sorted(str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
+                  if not p.name.startswith("_"))
+    listed = _module_table()
+    assert sorted(set(listed)) == sorted(listed), "listed twice: " + ", ".join(
+        sorted({m for m in listed if listed.count(m) > 1}))
+    assert not set(tree) - set(listed), "not in the README's module table: " + ", ".join(sorted(set(tree) -
+                                                                                             set(listed)))
+    assert not set(listed) - set(tree), "in the README's table but not in the tree: " + ", ".join(
+        sorted(set(listed) - set(tree)))
+
+
+def _snippets():
+    return re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+
+
+def test_readme_has_snippets():
+    assert len(_snippets()) >= 3
+
+
+@pytest.mark.parametrize("index", range(len(_snippets())))
+def test_readme_snippet_runs(index, tmp_path):
+    """Each ```python block of the README runs on its own in a fresh interpreter (CPU), in an empty folder holding
+    a copy of ``examples/`` (the files the README's commands use)."""
+    source = _snippets()[index]
+    shutil.copytree(ROOT / "examples", tmp_path / "examples")
+    environment = {**os.environ, "JAX_PLATFORMS": "cpu", "MPLBACKEND": "Agg"}
+    result = subprocess.run([sys.executable, "-c", source], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=600, env=environment)
+    assert result.returncode == 0, f"README snippet {index + 1} failed:\n{source}\n{result.stderr[-3000:]}"
+
+
+def test_public_face_is_literal_complete_and_cheap():
+    """``seaice_jax.__all__`` is a literal list (static tools read it) whose every name resolves, with the user API
+    in it; importing the package loads neither OpenCV, matplotlib nor xarray."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    assignment = next(node for node in tree.body if isinstance(node, ast.Assign)
+                      and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets))
+    assert isinstance(assignment.value, ast.List)
+    names = [element.value for element in assignment.value.elts if isinstance(element, ast.Constant)]
+    assert len(names) == len(assignment.value.elts) == len(set(names))
+    assert {"fit_scan_model", "remap", "track", "simultaneous_block", "BlockOptions", "least_squares",
+            "Observations", "RankDeficiencyError", "GeometryError", "SeaiceError", "MapGrid", "Projection",
+            "NavigationSpline", "Trajectory", "simulate_sequence", "nsidc_polar_stereographic"} <= set(names)
+    script = ("import sys, seaice_jax as sj\n"
+              "heavy = [m for m in ('cv2', 'matplotlib', 'xarray') if m in sys.modules]\n"
+              "assert not heavy, heavy\n"
+              f"missing = [n for n in {names!r} if getattr(sj, n, None) is None]\n"
+              "assert not missing, missing\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300,
+                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    assert result.returncode == 0, result.stderr[-2000:]
