@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(VENV)/bin/seaice demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
 	$(PY) benchmarks/bench_orbit_fit.py
 	$(PY) benchmarks/bench_block.py
+	$(PY) benchmarks/bench_cli.py
 
 clean:
 	rm -rf seaice-demo .pytest_cache

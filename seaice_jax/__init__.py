@@ -2,75 +2,113 @@
 
 The user API, re-exported here: ``import seaice_jax as sj; sj.fit_scan_model(...)``, ``sj.remap``,
 ``sj.simultaneous_block``, ``sj.least_squares``, ``sj.track``, the geometry and projections. Deeper modules hold the
-rest (see the README's module table). Importing the package enables ``jax_enable_x64``: geocentric coordinates are
-~6.4e6 m and must keep millimetres. OpenCV (``remap``, ``track``, ``TrackingOptions``) is imported only when first used.
+rest (see the README's module table). Each name is imported on first use, so that ``import seaice_jax`` (and the
+``seaice`` command's ``--help``) loads neither JAX nor OpenCV.
+
+Float64: geocentric coordinates are ~6.4e6 m and must keep millimetres. Every subpackage that runs JAX imports
+:mod:`seaice_jax._config` (``jax_enable_x64``) before any of its code, so no seaice_jax function runs in float32.
+Importing the package also makes JAX float64 for the caller: at once if JAX is already loaded, otherwise through
+``JAX_ENABLE_X64`` (unless the caller set it), which JAX reads when it is first imported.
 """
 
 import importlib
+import os
+import sys
 from typing import TYPE_CHECKING
 
-from seaice_jax import _config  # noqa: F401  (float64 on import)
-from seaice_jax.adjust.block import BlockOptions, simultaneous_block
-from seaice_jax.adjust.lsq import Observations, least_squares
-from seaice_jax.adjust.orbit_fit import fit_scan_model
 from seaice_jax.errors import GeometryError, RankDeficiencyError, SeaiceError
-from seaice_jax.geometry.earth import (
-    EARTH_ROTATION_RATE,
-    MEAN_RADIUS,
-    SIDEREAL_DAY,
-    SOLAR_DAY,
-    WGS84_FLATTENING,
-    WGS84_SEMI_MAJOR_AXIS,
-    cartesian_to_sphere,
-    ecef_to_geodetic,
-    geodetic_to_ecef,
-    great_circle_distance,
-    latitude_longitude,
-    north_east,
-    sphere_to_cartesian,
-    unit_vector,
-    wrap_angle,
-)
-from seaice_jax.geometry.projections import (
-    Equirectangular,
-    ImageGrid,
-    LambertConformalConic,
-    MapGrid,
-    PolarStereographic,
-    Projection,
-    TangentPlane,
-    nsidc_polar_stereographic,
-)
-from seaice_jax.geometry.range_doppler import (
-    LEFT,
-    RIGHT,
-    LookSide,
-    doppler_residual,
-    ground_point,
-    imaging_time_and_range,
-    incidence_angle,
-)
-from seaice_jax.geometry.scan import SATELLITES, SCAN_UNKNOWNS, Orbit, SatelliteOrbit, ScanModel, satellite_orbit
-from seaice_jax.geometry.trajectory import CircularTrajectory, Trajectory
-from seaice_jax.sensors.control import ControlPoints, ImageObservations
-from seaice_jax.sensors.navigation import NavigationSpline
-from seaice_jax.simulate.satellite import simulate_sequence
+
+if "jax" in sys.modules:
+    from seaice_jax import _config  # noqa: F401  (float64 now)
+else:
+    os.environ.setdefault("JAX_ENABLE_X64", "1")
 
 if TYPE_CHECKING:
+    from seaice_jax.adjust.block import BlockOptions, simultaneous_block
+    from seaice_jax.adjust.lsq import Observations, least_squares
+    from seaice_jax.adjust.orbit_fit import fit_scan_model
+    from seaice_jax.geometry.earth import (
+        EARTH_ROTATION_RATE,
+        MEAN_RADIUS,
+        SIDEREAL_DAY,
+        SOLAR_DAY,
+        WGS84_FLATTENING,
+        WGS84_SEMI_MAJOR_AXIS,
+        cartesian_to_sphere,
+        ecef_to_geodetic,
+        geodetic_to_ecef,
+        great_circle_distance,
+        latitude_longitude,
+        north_east,
+        sphere_to_cartesian,
+        unit_vector,
+        wrap_angle,
+    )
+    from seaice_jax.geometry.projections import (
+        Equirectangular,
+        ImageGrid,
+        LambertConformalConic,
+        MapGrid,
+        PolarStereographic,
+        Projection,
+        TangentPlane,
+        nsidc_polar_stereographic,
+    )
+    from seaice_jax.geometry.range_doppler import (
+        LEFT,
+        RIGHT,
+        LookSide,
+        doppler_residual,
+        ground_point,
+        imaging_time_and_range,
+        incidence_angle,
+    )
+    from seaice_jax.geometry.scan import SATELLITES, SCAN_UNKNOWNS, Orbit, SatelliteOrbit, ScanModel, satellite_orbit
+    from seaice_jax.geometry.trajectory import CircularTrajectory, Trajectory
     from seaice_jax.imagery.remap import remap
     from seaice_jax.imagery.tracking import TrackingOptions, track
+    from seaice_jax.sensors.control import ControlPoints, ImageObservations
+    from seaice_jax.sensors.navigation import NavigationSpline
+    from seaice_jax.simulate.satellite import simulate_sequence
 
 __version__ = "0.1.0"
 
-_LAZY = {"remap": "seaice_jax.imagery.remap", "track": "seaice_jax.imagery.tracking",
-         "TrackingOptions": "seaice_jax.imagery.tracking"}
-"""Names re-exported on first use (their modules import OpenCV)."""
+_SOURCES = {
+    "seaice_jax.adjust.block": ("BlockOptions", "simultaneous_block"),
+    "seaice_jax.adjust.lsq": ("Observations", "least_squares"),
+    "seaice_jax.adjust.orbit_fit": ("fit_scan_model",),
+    "seaice_jax.geometry.earth": ("EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
+                                  "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic",
+                                  "geodetic_to_ecef", "great_circle_distance", "latitude_longitude", "north_east",
+                                  "sphere_to_cartesian", "unit_vector", "wrap_angle"),
+    "seaice_jax.geometry.projections": ("Equirectangular", "ImageGrid", "LambertConformalConic", "MapGrid",
+                                        "PolarStereographic", "Projection", "TangentPlane",
+                                        "nsidc_polar_stereographic"),
+    "seaice_jax.geometry.range_doppler": ("LEFT", "RIGHT", "LookSide", "doppler_residual", "ground_point",
+                                          "imaging_time_and_range", "incidence_angle"),
+    "seaice_jax.geometry.scan": ("SATELLITES", "SCAN_UNKNOWNS", "Orbit", "SatelliteOrbit", "ScanModel",
+                                 "satellite_orbit"),
+    "seaice_jax.geometry.trajectory": ("CircularTrajectory", "Trajectory"),
+    "seaice_jax.sensors.control": ("ControlPoints", "ImageObservations"),
+    "seaice_jax.sensors.navigation": ("NavigationSpline",),
+    "seaice_jax.simulate.satellite": ("simulate_sequence",),
+    "seaice_jax.imagery.remap": ("remap",),
+    "seaice_jax.imagery.tracking": ("track", "TrackingOptions"),
+}
+_LAZY = {name: module for module, names in _SOURCES.items() for name in names}
+"""The module each public name is imported from on first use."""
 
 
 def __getattr__(name: str):
     if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module 'seaice_jax' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 
 __all__ = [

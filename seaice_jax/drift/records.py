@@ -50,8 +50,9 @@ class FloeRecords:
 
 def _parse_record(row: dict, where: str, known):
     """One record's ``(floe, time, image, [pixel, scan, latitude, longitude])``, checked: a floe id, a valid date,
-    finite numbers, latitude within ±90° and longitude within ±180°, a known image (``known``: ``None`` for any)."""
-    floe, image = row["floe_id"].strip(), row["image"].strip()
+    finite numbers, latitude within ±90° and longitude within [-180°, 360°), a known image (``known``: ``None``
+    for any)."""
+    floe, image = (row["floe_id"] or "").strip(), (row["image"] or "").strip()
     if not floe:
         raise SeaiceError(f"{where}: empty floe_id")
     try:
@@ -68,8 +69,9 @@ def _parse_record(row: dict, where: str, known):
         if not np.isfinite(value):
             raise SeaiceError(f"{where}: floe {floe}: {name} is not finite")
         numbers.append(value)
-    if abs(numbers[2]) > 90 or abs(numbers[3]) > 180:
-        raise SeaiceError(f"{where}: floe {floe}: position ({numbers[2]}, {numbers[3]}) outside ±90° / ±180°")
+    if abs(numbers[2]) > 90 or not -180 <= numbers[3] < 360:
+        raise SeaiceError(f"{where}: floe {floe}: position ({numbers[2]}, {numbers[3]}) outside latitude [-90°, 90°] "
+                          "/ longitude [-180°, 360°)")
     if known is not None and image not in known:
         raise SeaiceError(f"{where}: floe {floe}: unknown image {image!r} (known: {', '.join(sorted(known))})")
     return floe, moment, image, numbers
@@ -86,12 +88,19 @@ def read_records(path: str | os.PathLike, images=None, epoch: str | None = None)
         SeaiceError: naming the file and line (and floe) of the first bad record.
     """
     path = Path(path)
-    with open(path, newline="") as stream:
-        reader = csv.DictReader(stream)
-        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise SeaiceError(f"{path}: missing column(s) {', '.join(missing)} (need {', '.join(COLUMNS)})")
-        rows = list(reader)
+    if not path.is_file():
+        raise SeaiceError(f"{path}: {'not a regular file' if path.exists() else 'file not found'}")
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as stream:
+            reader = csv.DictReader(stream)
+            missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise SeaiceError(f"{path}: missing column(s) {', '.join(missing)} (need {', '.join(COLUMNS)})")
+            rows = list(reader)
+    except UnicodeDecodeError as error:
+        raise SeaiceError(f"{path}: not UTF-8 text (byte {error.start}: {error.reason}); save it as UTF-8") from None
+    except csv.Error as error:
+        raise SeaiceError(f"{path}: not a readable CSV table ({error})") from None
     if not rows:
         raise SeaiceError(f"{path}: no records")
     known = None if images is None else set(images)

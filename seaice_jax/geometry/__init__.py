@@ -1,6 +1,7 @@
 """Pure geometric models (no I/O): the Earth, range-Doppler intersection, the great-circle scan model,
 trajectories and map projections."""
 
+from seaice_jax import _config  # noqa: F401  (float64 before any of this subpackage's code)
 from seaice_jax.geometry.earth import (
     EARTH_ROTATION_RATE,
     MEAN_RADIUS,

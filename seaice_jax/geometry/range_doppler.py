@@ -10,9 +10,11 @@ from typing import Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.typing import ArrayLike
 
-from seaice_jax.geometry._checks import raise_where_nan
+from seaice_jax.errors import GeometryError
+from seaice_jax.geometry._checks import is_traced, raise_where_nan
 from seaice_jax.geometry.earth import MEAN_RADIUS
 
 LookSide = Literal["right", "left"]
@@ -31,6 +33,11 @@ def look_sign(look_side: LookSide | ArrayLike) -> jnp.ndarray:
         if look_side not in sides:
             raise ValueError(f"look_side must be 'right' or 'left', got {look_side!r}")
         return jnp.asarray(sides[look_side])
+    if not is_traced(look_side):
+        values = np.asarray(look_side, float)
+        if not np.all(np.abs(values) == 1.0):
+            raise ValueError(f"look_side must be 'right', 'left' or +1 (right) / -1 (left), got "
+                             f"{np.unique(values[np.abs(values) != 1.0]).tolist()}")
     return jnp.sign(jnp.asarray(look_side, float))
 
 
@@ -40,6 +47,26 @@ def _norm(v):
 
 def _dot(a, b):
     return jnp.sum(a * b, axis=-1)
+
+
+def _check_sensor(position, velocity, slant_range) -> None:
+    """Outside jit: name the indices of non-finite inputs or of a zero velocity (no Doppler plane), which would
+    otherwise be reported as impossible geometry."""
+    if is_traced(position, velocity, slant_range):
+        return
+    position, velocity, slant_range = (np.asarray(v, float) for v in (position, velocity, slant_range))
+    shape = np.broadcast_shapes(position.shape[:-1], velocity.shape[:-1], slant_range.shape)
+    checks = [("position", ~np.all(np.isfinite(position), axis=-1), "not finite"),
+              ("velocity", ~np.all(np.isfinite(velocity), axis=-1), "not finite"),
+              ("slant range", ~np.isfinite(slant_range), "not finite"),
+              ("velocity", np.all(velocity == 0, axis=-1), "zero (the sensor must move: its velocity defines the "
+                                                           "Doppler plane)")]
+    for what, bad, reason in checks:
+        bad = np.atleast_1d(np.broadcast_to(bad, shape))
+        if np.any(bad):
+            indices = np.nonzero(bad)
+            listed = list(zip(*(i.tolist() for i in indices), strict=True))[:10]
+            raise GeometryError(f"{what} {reason} at index {listed} ({int(bad.sum())} in all)", indices)
 
 
 def ground_point(
@@ -83,6 +110,7 @@ def ground_point(
     point = _ground_point(position, velocity, slant_range, radius, look_sign(look_side), wavelength, doppler)
     if on_failure == "nan":
         return point
+    _check_sensor(position, velocity, slant_range)
     raise_where_nan(
         point,
         "slant range",

@@ -21,8 +21,10 @@ from typing import Literal
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
+from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry._checks import is_traced, raise_where_nan
 from seaice_jax.geometry._vectors import as_float as _as_float
 from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, unit_vector
@@ -36,6 +38,11 @@ SCAN_UNKNOWNS = ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first", 
 (all angles in radians except ``subtrack_pixel``, a pixel)."""
 
 _DIRECTION_SIGN = {"south": 1.0, "north": -1.0}
+
+
+_ORBIT_RANGES = {"inclination (radians)": "within (0, π)", "period (s)": "finite and > 0",
+                 "altitude (m)": "finite and >= 0", "earth_day (s)": "> 0 (inf: no Earth rotation)",
+                 "radius (m)": "finite and > 0"}
 
 
 class Orbit(eqx.Module):
@@ -56,10 +63,34 @@ class Orbit(eqx.Module):
     earth_day: Float[Array, ""] = eqx.field(converter=_as_float, default=SIDEREAL_DAY)
     radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
 
+    def __check_init__(self):
+        """Outside jit: 0 < i < π, T_s > 0, T_e > 0 (``inf`` allowed), H >= 0, R > 0 (finite), else an error
+        naming the parameter."""
+        fields = (self.inclination, self.period, self.altitude, self.earth_day, self.radius)
+        if is_traced(*fields):
+            return
+        inclination, period, altitude, earth_day, radius = (np.asarray(v) for v in fields)
+        checks = [("inclination (radians)", inclination, (inclination > 0) & (inclination < np.pi)),
+                  ("period (s)", period, np.isfinite(period) & (period > 0)),
+                  ("altitude (m)", altitude, np.isfinite(altitude) & (altitude >= 0)),
+                  ("earth_day (s)", earth_day, earth_day > 0),
+                  ("radius (m)", radius, np.isfinite(radius) & (radius > 0))]
+        for name, value, good in checks:
+            if not np.all(good):
+                raise SeaiceError(f"Orbit: {name} must be {_ORBIT_RANGES[name]}, got {value}")
+
     @classmethod
     def from_max_latitude(cls, max_latitude, period, altitude=0.0, earth_day=SIDEREAL_DAY, radius=MEAN_RADIUS,
                           retrograde=True):
-        """Orbit from the maximum latitude θ_m of the subtrack (radians): i = π − θ_m if retrograde, else θ_m."""
+        """Orbit from the maximum latitude θ_m of the subtrack (radians): i = π − θ_m if retrograde, else θ_m.
+
+        Raises:
+            SeaiceError: outside jit, for θ_m outside (0, π/2].
+        """
+        if not is_traced(max_latitude) and not np.all((np.asarray(max_latitude) > 0)
+                                                      & (np.asarray(max_latitude) <= np.pi / 2)):
+            raise SeaiceError(f"Orbit: maximum latitude must be within (0°, 90°], got "
+                              f"{np.degrees(np.asarray(max_latitude))}°")
         max_latitude = jnp.asarray(max_latitude, float)
         inclination = jnp.pi - max_latitude if retrograde else max_latitude
         return cls(inclination, period, altitude, earth_day, radius)

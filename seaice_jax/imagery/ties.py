@@ -63,8 +63,8 @@ from seaice_jax.imagery.tracking import (
     quadratic_peak,
 )
 
-_CHUNK = 1000
-"""Windows per ``cv2.remap`` call (its output must stay below 32767 rows)."""
+_REMAP_ROWS = 32_000
+"""Rows of one ``cv2.remap`` output (OpenCV refuses 32767 or more): windows are resampled in chunks below it."""
 _POINTS = 4096
 """Points per call of the compiled geometry kernels (the last call padded)."""
 
@@ -364,8 +364,9 @@ def _windows(data, source, target, pixel, scan, half):
     size = 2 * half + 1
     out = np.empty(p.shape, np.float32)
     image = np.asarray(data, np.float32)
-    for start in range(0, pixel.size, _CHUNK):
-        part = slice(start, start + _CHUNK)
+    chunk = _REMAP_ROWS // size
+    for start in range(0, pixel.size, chunk):
+        part = slice(start, start + chunk)
         map_x = np.nan_to_num(p[part] - 1.0, nan=-10.0).astype(np.float32).reshape(-1, size)
         map_y = np.nan_to_num(s[part] - 1.0, nan=-10.0).astype(np.float32).reshape(-1, size)
         resampled = cv2.remap(image, map_x, map_y, cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)

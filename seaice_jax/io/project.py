@@ -33,6 +33,7 @@ sweep delay and range scale against the altimeter; one strip only).
 Every error names the file and line; reading never writes anything.
 """
 
+import itertools
 import os
 import tomllib
 from dataclasses import dataclass, replace
@@ -43,7 +44,8 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.projections import TangentPlane
-from seaice_jax.io.tables import read_table
+from seaice_jax.io.tables import check_input_file, project_file, read_table
+from seaice_jax.outputs import output_folder
 from seaice_jax.sensors.slar import ImageFrame, check_time_marks
 from seaice_jax.sensors.strips import Coverage, Measurements, StripRecord
 
@@ -64,6 +66,18 @@ class Project:
     surface: str = "ice"
 
 
+def _number(table: dict, key: str, where: str, positive: bool = False, non_negative: bool = False) -> float:
+    """A finite number of a TOML table (``positive``: > 0; ``non_negative``: >= 0), or an error naming the key."""
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise SeaiceError(f"{where}: {key} must be a finite number, got {value!r}")
+    if positive and not value > 0:
+        raise SeaiceError(f"{where}: {key} must be > 0, got {value!r}")
+    if non_negative and not value >= 0:
+        raise SeaiceError(f"{where}: {key} must be >= 0, got {value!r}")
+    return float(value)
+
+
 def _numbers(path, columns):
     rows = read_table(path, columns, columns)
     return np.array([[row[c] for c in columns] for _, row in rows], float).reshape(-1, len(columns)), rows
@@ -78,16 +92,27 @@ def _comparator_point(value, label, key, count=1):
     return points.astype(float)
 
 
-def _read_strip(strip, s, base, label):
+def _read_strip(strip, s, base, label, allow_outside=False):
     """One ``[[coverage.strip]]`` table -> (name, frame, StripRecord without nadir returns)."""
-    name = strip.get("name", f"strip {s + 1}")
+    if not isinstance(strip, dict):
+        raise SeaiceError(f"{label}: strip {s + 1} must be a [[coverage.strip]] table")
+    name = str(strip.get("name", f"strip {s + 1}"))
     where = f"{label} strip {name!r}"
     for key in ("navigation", "time_marks", "range_reference_mm", "far_range_mm", "sweep_delay_mm",
                 "range_scale_m_per_mm"):
         if key not in strip:
             raise SeaiceError(f"{where}: missing {key}")
-    navigation, _ = _numbers(base / strip["navigation"], NAVIGATION_COLUMNS)
-    marks_path = base / strip["time_marks"]
+    sweep_delay = _number(strip, "sweep_delay_mm", where, non_negative=True)
+    range_scale = _number(strip, "range_scale_m_per_mm", where, positive=True)
+    navigation_path = project_file(base, strip["navigation"], where, "navigation", allow_outside)
+    navigation, navigation_rows = _numbers(navigation_path, NAVIGATION_COLUMNS)
+    if navigation.shape[0] < 2:
+        raise SeaiceError(f"{navigation_path}: need at least two navigation records")
+    for k in range(1, navigation.shape[0]):
+        if navigation[k, 0] <= navigation[k - 1, 0]:
+            raise SeaiceError(f"{navigation_path}, line {navigation_rows[k][0]}: time_s {navigation[k, 0]} does not "
+                              f"increase (previous record {navigation[k - 1, 0]})")
+    marks_path = project_file(base, strip["time_marks"], where, "time_marks", allow_outside)
     marks, mark_rows = _numbers(marks_path, ("x_mm", "y_mm", "time_s"))
     if marks.shape[0] < 2:
         raise SeaiceError(f"{marks_path}: need at least two time marks")
@@ -101,20 +126,27 @@ def _read_strip(strip, s, base, label):
                               f"mm, t {marks[k, 2]} s after x {mark_x[k - 1]:.3f} mm, t {marks[k - 1, 2]} s along "
                               "the time-mark line)")
     check_time_marks(mark_x, marks[:, 2], str(marks_path))
+    if marks[0, 2] < navigation[0, 0] or marks[-1, 2] > navigation[-1, 0]:
+        raise SeaiceError(f"{marks_path}: time marks {marks[0, 2]}..{marks[-1, 2]} s reach outside the navigation "
+                          f"records' span {navigation[0, 0]}..{navigation[-1, 0]} s ({navigation_path})")
     look_side = strip.get("look_side", "right")
     if look_side not in ("right", "left"):
         raise SeaiceError(f"{where}: look_side must be 'right' or 'left'")
     record = StripRecord(name, float(marks[0, 2]), float(marks[-1, 2]), navigation[:, 0], navigation[:, 1:4],
                          navigation[:, 4:7], navigation[:, 7], mark_x, marks[:, 2], np.zeros(0), np.zeros(0),
-                         float(strip["sweep_delay_mm"]), float(strip["range_scale_m_per_mm"]), look_side)
+                         sweep_delay, range_scale, look_side)
     return name, frame, record
 
 
 def _map_plane_and_surface(path: Path, project: dict) -> tuple[TangentPlane, str]:
     """The ``[project]`` table's map plane and surface (``"ice"`` or ``"land"``)."""
     centre = project.get("map_centre_deg")
-    if not (isinstance(centre, list) and len(centre) == 2):
-        raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude]")
+    if not (isinstance(centre, list) and len(centre) == 2 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in centre)):
+        raise SeaiceError(f"{path}: [project] map_centre_deg must be [latitude, longitude] in degrees, got {centre!r}")
+    if not (-90 < centre[0] < 90 and -180 <= centre[1] < 360):
+        raise SeaiceError(f"{path}: [project] map_centre_deg {centre!r}: latitude must be within (-90°, 90°) and "
+                          "longitude within [-180°, 360°)")
     surface = project.get("surface", "ice")
     if surface not in ("ice", "land"):
         raise SeaiceError(f"{path}: [project] surface must be 'ice' or 'land', got {surface!r}")
@@ -166,11 +198,16 @@ def _read_measurements(path: Path, strip_index: dict, frames: list, ids: dict, k
 
 def _read_control(path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> dict:
     """The control CSV of a coverage: ``{point index: (x, y, σ)}`` map metres."""
-    control = {}
+    control, lines = {}, {}
     for line, row in read_table(path, ("point", "lat", "lon", "sigma_m"), ("lat", "lon", "sigma_m")):
-        if abs(row["lat"]) > 90 or not row["sigma_m"] > 0:
-            raise SeaiceError(f"{path}, line {line}: point {row['point']}: latitude within ±90° and sigma_m > 0 "
-                              "required")
+        if abs(row["lat"]) > 90 or not -180 <= row["lon"] < 360 or not row["sigma_m"] > 0:
+            raise SeaiceError(f"{path}, line {line}: point {row['point']}: latitude within [-90°, 90°], longitude "
+                              f"within [-180°, 360°) and sigma_m > 0 required, got lat {row['lat']}, lon "
+                              f"{row['lon']}, sigma_m {row['sigma_m']}")
+        if row["point"] in lines:
+            raise SeaiceError(f"{path}, line {line}: control point {row['point']} already defined on line "
+                              f"{lines[row['point']]}")
+        lines[row["point"]] = line
         if kinds.get(row["point"], ("control",))[0] != "control":
             raise SeaiceError(f"{path}, line {line}: point {row['point']} is a control point here but "
                               f"{kinds[row['point']][0]!r} at {kinds[row['point']][1]}")
@@ -179,41 +216,62 @@ def _read_control(path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> di
     return control
 
 
-def _read_coverage(cov: dict, c: int, path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> Coverage:
+def _read_coverage(cov: dict, c: int, path: Path, plane: TangentPlane, ids: dict, kinds: dict,
+                   allow_outside: bool = False) -> Coverage:
     """One ``[[coverage]]`` table with its strips, measurements and control points."""
     base, label = path.parent, f"{path}: coverage {cov.get('name', c + 1)!r}"
     strips, frames, strip_index = [], [], {}
+    if not isinstance(cov.get("strip", []), list):
+        raise SeaiceError(f"{label}: strips must be [[coverage.strip]] tables")
     for s, strip in enumerate(cov.get("strip", [])):
-        name, frame, record = _read_strip(strip, s, base, label)
+        name, frame, record = _read_strip(strip, s, base, label, allow_outside)
+        if name in strip_index:
+            raise SeaiceError(f"{label}: strip {name!r} defined twice")
         strip_index[name] = s
         strips.append(record)
         frames.append(frame)
     if "measurements" not in cov:
         raise SeaiceError(f"{label}: missing measurements")
-    measurements, nadir = _read_measurements(base / cov["measurements"], strip_index, frames, ids, kinds)
+    measurements, nadir = _read_measurements(project_file(base, cov["measurements"], label, "measurements",
+                                                           allow_outside), strip_index, frames, ids, kinds)
     strips = [replace(strip, nadir_x=np.array([v[0] for v in nadir[j]]), nadir_y=np.array([v[1] for v in nadir[j]]))
               for j, strip in enumerate(strips)]
-    control = _read_control(base / cov["control"], plane, ids, kinds) if cov.get("control") else {}
-    return Coverage(cov.get("name", f"coverage {c + 1}"), float(cov.get("epoch_s", 0.0)), tuple(strips),
-                    measurements, control)
+    control = _read_control(project_file(base, cov["control"], label, "control", allow_outside), plane, ids,
+                            kinds) if cov.get("control") else {}
+    epoch = _number(cov, "epoch_s", label) if "epoch_s" in cov else 0.0
+    return Coverage(str(cov.get("name", f"coverage {c + 1}")), epoch, tuple(strips), measurements, control)
 
 
-def read_project(path: str | os.PathLike) -> Project:
-    """Read and validate a project (see the module docstring)."""
+def read_project(path: str | os.PathLike, allow_outside: bool = False) -> Project:
+    """Read and validate a project (see the module docstring). The files it names are resolved relative to the
+    project file's folder and must lie inside it unless ``allow_outside``.
+
+    Raises:
+        SeaiceError: naming the file, line, table or key at fault.
+    """
     path = Path(path)
+    check_input_file(path)
     try:
-        config = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SeaiceError(f"{path}: file not found") from None
+        config = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except UnicodeDecodeError as error:
+        raise SeaiceError(f"{path}: not UTF-8 text (byte {error.start}: {error.reason}); save it as UTF-8") from None
     except tomllib.TOMLDecodeError as error:
         raise SeaiceError(f"{path}: {error}") from None
     project = config.get("project", {})
+    if not isinstance(project, dict) or not isinstance(config.get("coverage", []), list):
+        raise SeaiceError(f"{path}: [project] must be a table and coverages [[coverage]] tables")
     plane, surface = _map_plane_and_surface(path, project)
     ids: dict[str, int] = {}
     kinds: dict[str, tuple[str, str]] = {}  # point -> (kind, where it was first given)
-    coverages = [_read_coverage(cov, c, path, plane, ids, kinds) for c, cov in enumerate(config.get("coverage", []))]
+    coverages = [_read_coverage(cov, c, path, plane, ids, kinds, allow_outside)
+                 for c, cov in enumerate(config.get("coverage", []))]
     if not coverages:
         raise SeaiceError(f"{path}: no [[coverage]] tables")
+    for before, after in itertools.pairwise(coverages):
+        if after.epoch < before.epoch or (after.epoch == before.epoch and surface == "ice"):
+            raise SeaiceError(f"{path}: coverage {after.name!r} epoch_s {after.epoch} is not after coverage "
+                              f"{before.name!r} epoch_s {before.epoch} (coverages of drifting ice are listed in "
+                              "time order)")
     point_kinds = tuple(kinds.get(p, ("control",))[0] for p in ids)
     return Project(project.get("name", path.stem), plane, tuple(ids), point_kinds, tuple(coverages), surface)
 
@@ -227,15 +285,20 @@ def _point_kinds(scenario):
     return ["control" if p in control else "drift" if seen[p] > 1 else "tie" for p in range(len(scenario.kinds))]
 
 
-def write_project(scenario, out_dir: str | os.PathLike) -> Path:
-    """Write a simulated :class:`~seaice_jax.simulate.aircraft.Scenario` as a project (plus ``truth.csv``).
+def write_project(scenario, out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Write a simulated :class:`~seaice_jax.simulate.aircraft.Scenario` as a project (plus ``truth.csv``), as one
+    run (:func:`~seaice_jax.outputs.output_folder`; ``overwrite`` replaces an existing folder whole).
 
     Each film is laid on the comparator turned by a small angle and shifted, as an operator would place it, so
     the comparator coordinates x', y' differ from the image coordinates; the time marks are printed 3 mm beside
     the range reference line.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_folder(out_dir, overwrite) as folder:
+        _write_project_files(scenario, folder.path)
+    return folder.target / "project.toml"
+
+
+def _write_project_files(scenario, out: Path) -> None:
     ids = [f"P{i + 1:04d}" for i in range(len(scenario.kinds))]
     kinds = _point_kinds(scenario)
     centre = [float(np.degrees(scenario.plane.latitude)), float(np.degrees(scenario.plane.longitude))]
@@ -295,4 +358,3 @@ def write_project(scenario, out_dir: str | os.PathLike) -> Path:
     write_csv(out / "truth.csv", truth_rows, float_format="%.12g")
     with atomic_path(out / "project.toml") as temporary:
         temporary.write_text("\n".join(lines))
-    return out / "project.toml"

@@ -35,7 +35,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, satellite_orbit
-from seaice_jax.io.tables import read_table
+from seaice_jax.io.tables import check_input_file, project_file, read_table
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.timefmt import format_time, parse_time, time_after
 
@@ -57,6 +57,10 @@ class SequenceImage:
     model: ScanModel | None
     control: ControlPoints | None
     direction: str
+
+
+MEMORY_BUDGET = 4 * 2**30
+"""Bytes a sequence may need for its remapped stack (float64) or one image file: a bigger one is refused."""
 
 
 @dataclass(frozen=True)
@@ -109,15 +113,23 @@ def read_image_file(path: Path) -> np.ndarray:
     return data
 
 
-def _read_control(path: Path) -> ControlPoints:
+def _read_control(path: Path, shape) -> ControlPoints:
     columns = ("pixel", "scan", "latitude", "longitude", "sigma_m")
     rows = read_table(path, ("id", *columns), columns)
     if not rows:
         raise SeaiceError(f"{path}: no control points")
+    lines: dict[str, int] = {}
     for line, row in rows:
-        if abs(row["latitude"]) > 90 or abs(row["longitude"]) > 180 or row["sigma_m"] <= 0:
-            raise SeaiceError(f"{path}, line {line}: point {row['id']}: latitude/longitude out of range or "
-                              "sigma_m not positive")
+        if abs(row["latitude"]) > 90 or not -180 <= row["longitude"] < 360 or row["sigma_m"] <= 0:
+            raise SeaiceError(f"{path}, line {line}: point {row['id']}: latitude must be within [-90°, 90°], "
+                              f"longitude within [-180°, 360°) and sigma_m > 0, got {row['latitude']}, "
+                              f"{row['longitude']}, {row['sigma_m']}")
+        if not (0.5 <= row["pixel"] <= shape[1] + 0.5 and 0.5 <= row["scan"] <= shape[0] + 0.5):
+            raise SeaiceError(f"{path}, line {line}: point {row['id']} at pixel {row['pixel']}, scan {row['scan']} "
+                              f"is outside the image ({shape[1]} pixels x {shape[0]} scan lines, 1-based)")
+        if row["id"] in lines:
+            raise SeaiceError(f"{path}, line {line}: point {row['id']} already defined on line {lines[row['id']]}")
+        lines[row["id"]] = line
     values = {c: np.array([row[c] for _, row in rows]) for c in columns}
     return ControlPoints(values["pixel"], values["scan"], np.radians(values["latitude"]),
                          np.radians(values["longitude"]), values["sigma_m"], [row["id"] for _, row in rows])
@@ -127,13 +139,18 @@ def _given_model(entry: dict, label: str, orbit: Orbit, direction: str, shape) -
     """The scan model an ``[[image]]`` gives (:data:`MODEL_KEYS`, angles in degrees) for an image of ``shape``."""
     if direction not in ("south", "north"):
         raise SeaiceError(f"{label}: a given scan model needs direction = 'south' or 'north'")
+    for key in MODEL_KEYS:
+        if isinstance(entry[key], bool) or not isinstance(entry[key], int | float) or not np.isfinite(entry[key]):
+            raise SeaiceError(f"{label}: {key} must be a finite number, got {entry[key]!r}")
     unknowns = {unknown: float(entry[key]) if key == "subtrack_pixel" else np.radians(entry[key])
                 for unknown, key in zip(SCAN_UNKNOWNS, MODEL_KEYS, strict=True)}
     return ScanModel(**unknowns, orbit=orbit, direction=direction, n_pixels=shape[1], n_scans=shape[0])
 
 
-def _read_image(entry: dict, k: int, path: Path, epoch: str) -> SequenceImage:
+def _read_image(entry: dict, k: int, path: Path, epoch: str, allow_outside: bool = False) -> SequenceImage:
     """One ``[[image]]`` table: its time, pixels, orbit, and control points or a given scan model."""
+    if not isinstance(entry, dict):
+        raise SeaiceError(f"{path}: image {k + 1} must be an [[image]] table")
     name = str(entry.get("name", f"image {k + 1}"))
     label = f"{path}: image {name!r}"
     try:
@@ -142,7 +159,11 @@ def _read_image(entry: dict, k: int, path: Path, epoch: str) -> SequenceImage:
         raise SeaiceError(f"{label}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
     if "file" not in entry:
         raise SeaiceError(f"{label}: no file")
-    data = read_image_file(path.parent / entry["file"])
+    image_path = project_file(path.parent, entry["file"], label, "file", allow_outside)
+    check_input_file(image_path, MEMORY_BUDGET)
+    data = read_image_file(image_path)
+    if not np.all(np.isfinite(data)):
+        raise SeaiceError(f"{image_path}: {np.count_nonzero(~np.isfinite(data))} pixel values are not finite")
     try:
         orbit = satellite_orbit(entry.get("satellite", "NOAA-7"), altitude=float(entry.get("altitude_m", 0.0)))
     except ValueError as error:
@@ -150,7 +171,8 @@ def _read_image(entry: dict, k: int, path: Path, epoch: str) -> SequenceImage:
     direction = entry.get("direction", "auto")
     model = control = None
     if "control" in entry:
-        control = _read_control(path.parent / entry["control"])
+        control = _read_control(project_file(path.parent, entry["control"], label, "control", allow_outside),
+                                data.shape)
     elif all(key in entry for key in MODEL_KEYS):
         model = _given_model(entry, label, orbit, direction, data.shape)
     else:
@@ -158,13 +180,42 @@ def _read_image(entry: dict, k: int, path: Path, epoch: str) -> SequenceImage:
     return SequenceImage(name, time, data, orbit, model, control, direction)
 
 
-def read_sequence(path: str | os.PathLike) -> SequenceProject:
-    """Read and check a sequence project (see the module docstring)."""
+def _checked_grid(path: Path, spec: dict) -> MapGrid:
+    """The ``[grid]`` table as a :class:`MapGrid`: finite numbers, latitude within ±90°, longitude within
+    [-180°, 360°), pixel sizes > 0, a shape of two positive integers within :data:`MEMORY_BUDGET`."""
+    for key in ("centre_deg", "pixel_m", "shape"):
+        value = spec.get(key)
+        if not (isinstance(value, list) and len(value) == 2 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in value)):
+            raise SeaiceError(f"{path}: [grid] {key} must be two numbers, got {value!r}")
+    (latitude, longitude), pixel_m, shape = spec["centre_deg"], spec["pixel_m"], spec["shape"]
+    if not (-90 <= latitude <= 90 and -180 <= longitude < 360):
+        raise SeaiceError(f"{path}: [grid] centre_deg {spec['centre_deg']!r}: latitude must be within [-90°, 90°] and "
+                          "longitude within [-180°, 360°)")
+    if not (pixel_m[0] > 0 and pixel_m[1] > 0):
+        raise SeaiceError(f"{path}: [grid] pixel_m must be > 0, got {pixel_m!r}")
+    if not all(isinstance(n, int) and n >= 1 for n in shape):
+        raise SeaiceError(f"{path}: [grid] shape must be two positive integers (rows, columns), got {shape!r}")
+    if 8 * shape[0] * shape[1] > MEMORY_BUDGET:
+        raise SeaiceError(f"{path}: [grid] shape {shape!r} needs {8 * shape[0] * shape[1] / 2**30:.1f} GiB per image, "
+                          f"more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+    return make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], pixel_m, shape)
+
+
+def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> SequenceProject:
+    """Read and check a sequence project (see the module docstring). The files it names are resolved relative to
+    its folder and must lie inside it unless ``allow_outside``; the remapped stack (float64, images x grid) must fit
+    in :data:`MEMORY_BUDGET`.
+
+    Raises:
+        SeaiceError: naming the file, table, key or line at fault.
+    """
     path = Path(path)
-    if not path.exists():
-        raise SeaiceError(f"{path}: file not found")
+    check_input_file(path)
     try:
-        document = tomllib.loads(path.read_text())
+        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except UnicodeDecodeError as error:
+        raise SeaiceError(f"{path}: not UTF-8 text (byte {error.start}: {error.reason}); save it as UTF-8") from None
     except tomllib.TOMLDecodeError as error:
         raise SeaiceError(f"{path}: {error}") from None
     try:
@@ -174,13 +225,17 @@ def read_sequence(path: str | os.PathLike) -> SequenceProject:
     spec = document.get("grid")
     if not isinstance(spec, dict):
         raise SeaiceError(f"{path}: a [grid] table is needed")
-    try:
-        grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
-    except (KeyError, TypeError, IndexError) as error:
-        raise SeaiceError(f"{path}: [grid] needs centre_deg, pixel_m and shape ({error})") from None
+    grid = _checked_grid(path, spec)
+    entries = document.get("image", [])
+    if not isinstance(entries, list):
+        raise SeaiceError(f"{path}: images must be [[image]] tables")
+    stack = 8 * len(entries) * grid.shape[0] * grid.shape[1]
+    if stack > MEMORY_BUDGET:
+        raise SeaiceError(f"{path}: {len(entries)} images on a {grid.shape[0]} x {grid.shape[1]} grid need "
+                          f"{stack / 2**30:.1f} GiB, more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
     images, names = [], set()
-    for k, entry in enumerate(document.get("image", [])):
-        image = _read_image(entry, k, path, epoch)
+    for k, entry in enumerate(entries):
+        image = _read_image(entry, k, path, epoch, allow_outside)
         if image.name in names:
             raise SeaiceError(f"{path}: image {image.name!r}: duplicate image name")
         names.add(image.name)

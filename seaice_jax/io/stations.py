@@ -19,6 +19,7 @@ import numpy as np
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path
+from seaice_jax.io.tables import check_input_file
 from seaice_jax.sensors.control import ControlPoints
 
 
@@ -124,7 +125,17 @@ def _number(row, column, where):
 def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None = None) -> list[Measurement]:
     """Read control-point measurements from CSV (see the module docstring for the columns)."""
     by_number = {str(s.number): s for s in catalogue or []}
-    with open(path, newline="") as stream:
+    check_input_file(Path(path))
+    try:
+        return _read_measurements(path, by_number, catalogue)
+    except UnicodeDecodeError as error:
+        raise SeaiceError(f"{path}: not UTF-8 text (byte {error.start}: {error.reason}); save it as UTF-8") from None
+    except csv.Error as error:
+        raise SeaiceError(f"{path}: not a readable CSV table ({error})") from None
+
+
+def _read_measurements(path, by_number: dict, catalogue) -> list[Measurement]:
+    with open(path, newline="", encoding="utf-8-sig") as stream:
         reader = csv.DictReader(stream)
         columns = {c.strip() for c in reader.fieldnames or []}
         required = {"id", "pixel", "scan"} | (set() if catalogue else {"lat", "lon"})
@@ -158,6 +169,8 @@ def _measurement(row: dict, point: str, where: str, by_number: dict) -> Measurem
         raise SeaiceError(f"{where}: point {point} has no lat/lon and is not in the station catalogue")
     if abs(latitude) > 90.0:
         raise SeaiceError(f"{where}: point {point} latitude {latitude}° is outside [-90°, 90°]")
+    if not -180.0 <= longitude < 360.0:
+        raise SeaiceError(f"{where}: point {point} longitude {longitude}° is outside [-180°, 360°)")
     sigma = _number(row, "sigma_km", where) if (row.get("sigma_km") or "").strip() else None
     if sigma is not None and sigma <= 0:
         raise SeaiceError(f"{where}: point {point} sigma_km must be > 0")
@@ -169,8 +182,23 @@ def control_points(measurements: list[Measurement], default_sigma_km: float = 1.
     """Measurements as :class:`ControlPoints` (σ from each measurement, else ``default_sigma_km``)."""
     if not measurements:
         raise SeaiceError("no control-point measurements")
+    if not (np.isfinite(default_sigma_km) and default_sigma_km > 0):
+        raise SeaiceError(f"--sigma (default_sigma_km) must be > 0, got {default_sigma_km}")
     return ControlPoints.from_degrees(
         [m.pixel for m in measurements], [m.scan for m in measurements],
         [m.latitude_deg for m in measurements], [m.longitude_deg for m in measurements],
         [default_sigma_km if m.sigma_km is None else m.sigma_km for m in measurements],
         [m.id for m in measurements])
+
+
+def check_in_image(measurements: list[Measurement], n_pixels: int, n_scans: int, path) -> None:
+    """Refuse measurements outside the image of ``n_pixels`` pixels by ``n_scans`` scan lines (1-based, as the
+    1985 images are counted: from 0.5 to ``n + 0.5`` covers every pixel's area).
+
+    Raises:
+        SeaiceError: naming the file, the point and its pixel/scan.
+    """
+    for m in measurements:
+        if not (0.5 <= m.pixel <= n_pixels + 0.5 and 0.5 <= m.scan <= n_scans + 0.5):
+            raise SeaiceError(f"{path}: point {m.id} at pixel {m.pixel}, scan {m.scan} is outside the image of "
+                              f"{n_pixels} pixels x {n_scans} scan lines (--pixels, --scans)")

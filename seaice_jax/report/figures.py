@@ -1,9 +1,18 @@
-"""The figures people look at. Every function writes a PNG atomically and returns its path."""
+"""The figures people look at, in one style. Each ``<name>_figure`` builds a matplotlib figure; ``plot_<name>``
+writes it as a PNG atomically and returns its path.
+
+The style every figure shares: constrained layout (titles, vector keys, legends and colour bars get their own room:
+nothing overprints), legends and vector keys outside the data axes, colour bars with units, map axes in kilometres
+of a named coordinate system (EPSG code or PROJ string), every symbol in a legend, and 95 % error ellipses drawn at
+a stated magnification when their true size would be invisible or would hide the vectors. PDF and/or SVG copies are
+written beside the PNG when the environment variable ``SEAICE_FIGURE_FORMATS`` lists them (e.g. ``pdf,svg``).
+"""
 
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -11,9 +20,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 from seaice_jax.drift.kinematics import error_ellipses  # noqa: E402
+from seaice_jax.errors import SeaiceError  # noqa: E402
 from seaice_jax.files import atomic_path  # noqa: E402
+
+FIGURE_FORMATS_VARIABLE = "SEAICE_FIGURE_FORMATS"
+"""Environment variable listing extra formats (``pdf``, ``svg``, comma-separated) written beside each PNG."""
+
+_EXTRA_FORMATS = ("pdf", "svg")
 
 
 @dataclass(frozen=True)
@@ -43,13 +59,95 @@ class MapPanel:
     title: str
 
 
+def crs_name(projection) -> str:
+    """How a figure names a map's coordinate system: ``EPSG:<code>`` where there is one, else the PROJ string."""
+    if projection is None:
+        return "map grid"
+    code = projection.epsg_code() if hasattr(projection, "epsg_code") else None
+    if code is not None:
+        return f"EPSG:{code}"
+    return projection.proj_string() if hasattr(projection, "proj_string") else type(projection).__name__
+
+
+def _figure(width: float, height: float, rows: int = 1, columns: int = 1, **options) -> tuple[Figure, Any]:
+    """A figure with constrained layout (the layout engine that keeps every label, key and colour bar apart)."""
+    return plt.subplots(rows, columns, figsize=(width, height), layout="constrained", **options)
+
+
+def _extra_formats() -> list[str]:
+    requested = [f.strip().lower() for f in os.environ.get(FIGURE_FORMATS_VARIABLE, "").split(",") if f.strip()]
+    unknown = sorted(set(requested) - set(_EXTRA_FORMATS))
+    if unknown:
+        raise SeaiceError(f"{FIGURE_FORMATS_VARIABLE}: unknown figure format(s) {', '.join(unknown)} (use "
+                          f"{', '.join(_EXTRA_FORMATS)})")
+    return requested
+
+
 def _save(fig, path) -> Path:
-    """Lay out, write as PNG atomically, close."""
-    fig.tight_layout()
-    with atomic_path(path) as temporary:
-        fig.savefig(temporary, format="png", dpi=110)
-    plt.close(fig)
-    return Path(path)
+    """Write as PNG (and the :data:`FIGURE_FORMATS_VARIABLE` formats beside it) atomically, close."""
+    path = Path(path)
+    try:
+        for extension in ["png", *_extra_formats()]:
+            target = path if extension == "png" else path.with_suffix(f".{extension}")
+            with atomic_path(target) as temporary:
+                fig.savefig(temporary, format=extension, dpi=150)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def _legend_outside(ax, **options):
+    """The axes' legend to the right of the axes (never over the data); nothing when there is nothing to explain."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=7, frameon=False,
+                  **options)
+
+
+def _vector_key(ax, arrows, length: float, label: str):
+    """The vector key to the right of the axes, below the legend (never over the title)."""
+    ax.quiverkey(arrows, 1.04, 0.02, length, label, labelpos="E", coordinates="axes", fontproperties={"size": 7})
+
+
+def _kilometre_axes(ax, crs: str):
+    kilometres = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:.0f}")
+    ax.xaxis.set_major_formatter(kilometres)
+    ax.yaxis.set_major_formatter(kilometres)
+    ax.set_xlabel(f"x (km, {crs})", fontsize=8)
+    ax.set_ylabel(f"y (km, {crs})", fontsize=8)
+
+
+def _nice(value: float) -> float:
+    """The 1-2-5 number nearest ``value`` (> 0) on a log scale."""
+    exponent = np.floor(np.log10(value))
+    mantissa = value / 10**exponent
+    return float(min((1.0, 2.0, 5.0, 10.0), key=lambda m: abs(np.log(mantissa / m))) * 10**exponent)
+
+
+def ellipse_magnification(semi_major, arrow_length) -> float:
+    """The factor 95 % ellipses are drawn at beside vectors whose reference arrow is ``arrow_length`` long (both in
+    map units): 1 when the median semi-major axis is between a tenth and the whole of the arrow (visible, not hiding
+    the vectors), else the 1-2-5 factor that brings it to about a third of the arrow."""
+    semi_major = np.asarray(semi_major, float)
+    semi_major = semi_major[np.isfinite(semi_major) & (semi_major > 0)]
+    if not semi_major.size:
+        return 1.0
+    typical = float(np.median(semi_major))
+    if 0.1 * arrow_length <= typical <= arrow_length:
+        return 1.0
+    return _nice(arrow_length / 3.0 / typical)
+
+
+def _magnification_text(factor: float) -> str:
+    return "true size" if factor == 1.0 else f"drawn ×{factor:g} true size"
+
+
+def _colours(count: int):
+    """``count`` distinct colours: the 10- or 20-colour qualitative maps, then samples of a continuous one."""
+    if count <= 10:
+        return [plt.get_cmap("tab10")(k) for k in range(count)]
+    if count <= 20:
+        return [plt.get_cmap("tab20")(k) for k in range(count)]
+    return [plt.get_cmap("viridis")(v) for v in np.linspace(0.0, 0.95, count)]
 
 
 def _graticule(ax, projection, x_limits, y_limits):
@@ -73,8 +171,8 @@ def _draw_panel(ax, panel: MapPanel):
     x_limits = (np.nanmin(xs) - margin, np.nanmax(xs) + margin)
     y_limits = (np.nanmin(ys) - margin, np.nanmax(ys) + margin)
     _graticule(ax, panel.projection, x_limits, y_limits)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for colour, layer in zip(colours * 3, panel.layers, strict=False):
+    ax.plot([], [], color="0.85", lw=0.6, label="graticule")
+    for colour, layer in zip(_colours(len(panel.layers)), panel.layers, strict=True):
         if layer.kind == "grid":
             ax.plot(layer.x, layer.y, color=colour, lw=0.5)
             ax.plot(layer.x.T, layer.y.T, color=colour, lw=0.5)
@@ -86,32 +184,33 @@ def _draw_panel(ax, panel: MapPanel):
     ax.set_xlim(*x_limits)
     ax.set_ylim(*y_limits)
     ax.set_aspect("equal")
-    kilometres = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:.0f}")
-    ax.xaxis.set_major_formatter(kilometres)
-    ax.yaxis.set_major_formatter(kilometres)
-    ax.set_xlabel("x (km)")
-    ax.set_ylabel("y (km)")
+    _kilometre_axes(ax, crs_name(panel.projection))
     ax.set_title(panel.title, fontsize=9)
-    ax.legend(loc="best", fontsize=7)
+    _legend_outside(ax)
 
 
-def plot_maps(path: str | os.PathLike, panels: Sequence[MapPanel], title: str) -> Path:
-    """Maps side by side, each with a graticule, axes in projected kilometres; written atomically as PNG."""
-    fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 6.5), squeeze=False)
+def maps_figure(panels: Sequence[MapPanel], title: str) -> Figure:
+    """Maps side by side, each with a graticule, axes in projected kilometres of the panel's projection."""
+    fig, axes = _figure(6.0 * len(panels) + 1.5, 5.5, 1, len(panels), squeeze=False)
     for ax, panel in zip(axes[0], panels, strict=True):
         _draw_panel(ax, panel)
     fig.suptitle(title, fontsize=11)
-    return _save(fig, path)
+    return fig
 
 
-def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, label: str, points=None) -> Path:
+def plot_maps(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`maps_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(maps_figure(*args, **options), path)
+
+
+def image_field_figure(pixel, scan, values, title: str, label: str, points=None) -> Figure:
     """A field over an image's pixel/scan grid (e.g. position σ) as a filled contour map, scan lines downward.
 
     Args:
-        pixel, scan, values: ``(n_scan, n_pixel)`` grids.
+        pixel, scan, values: ``(n_scan, n_pixel)`` grids. label: the colour bar's label, with units.
         points: optional ``(pixel, scan, names)`` to mark (control points).
     """
-    fig, ax = plt.subplots(figsize=(6.5, 5.5))
+    fig, ax = _figure(7.0, 5.5)
     filled = ax.contourf(pixel, scan, values, levels=15, cmap="viridis")
     fig.colorbar(filled, ax=ax, label=label)
     if points is not None:
@@ -119,161 +218,238 @@ def plot_image_field(path: str | os.PathLike, pixel, scan, values, title: str, l
         ax.scatter(px, sc, color="white", edgecolor="black", s=30, zorder=3, label="control points")
         for name, x, y in zip(names, px, sc, strict=False):
             ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color="white")
-        ax.legend(loc="lower right", fontsize=7)
+        ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), fontsize=7, frameon=False)
     ax.set_xlabel("pixel")
     ax.set_ylabel("scan line")
     ax.invert_yaxis()
     ax.set_title(title, fontsize=9)
-    return _save(fig, path)
+    return fig
 
 
-def plot_vectors(path: str | os.PathLike, positions, vectors, title: str, label: str, background=None,
-                 covariances=None) -> Path:
+def plot_image_field(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`image_field_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(image_field_figure(*args, **options), path)
+
+
+def vectors_figure(positions, vectors, title: str, label: str, background=None,
+                 covariances=None, projection=None, background_label: str = "points without a vector") -> Figure:
     """Vectors (e.g. drift, error or discrepancy vectors, metres) at map positions (metres), as arrows.
 
-    The arrow scale is printed in the key; ``background``: optional ``(n, 2)`` positions drawn as dots;
-    ``covariances``: optional ``(n, 2, 2)`` (m²) of the vectors, drawn as 95 % error ellipses at the arrow tips, at
-    the arrows' scale.
+    The arrow scale is in the vector key; ``background``: optional ``(n, 2)`` positions drawn as grey dots
+    (``background_label`` in the legend); ``covariances``: optional ``(n, 2, 2)`` (m²) of the vectors, drawn as
+    95 % error ellipses at the arrow tips at the arrows' scale times :func:`ellipse_magnification` (stated in the
+    legend); ``projection``: the positions' map projection, named on the axes.
     """
     from matplotlib.patches import Ellipse
 
     positions, vectors = np.asarray(positions, float), np.asarray(vectors, float)
-    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    fig, ax = _figure(8.0, 6.0)
     if background is not None:
-        ax.scatter(*np.asarray(background).T / 1000.0, s=3, color="0.7", zorder=0)
+        ax.scatter(*np.asarray(background).T, s=3, color="0.7", zorder=0, label=background_label)
     length = float(np.nanpercentile(np.hypot(*vectors.T), 90)) if vectors.size else 1.0
-    scale = max(length, 1e-9) / 8.0  # metres of vector per km of map
-    arrows = ax.quiver(positions[:, 0] / 1000.0, positions[:, 1] / 1000.0, vectors[:, 0], vectors[:, 1],
-                       angles="xy", scale_units="xy", scale=scale, width=0.003, color="C0")
-    ax.quiverkey(arrows, 0.85, 1.02, length, f"{length / 1000:.2f} km", labelpos="E", coordinates="axes")
+    length = max(length, 1e-9)
+    extent = np.concatenate([positions, np.asarray(background, float).reshape(-1, 2)]) if background is not None \
+        else positions
+    span = float(np.nanmax(np.ptp(extent, axis=0))) if extent.size else 1.0
+    arrow = max(0.06 * span, 1.0)  # map metres of the reference (90th percentile) arrow
+    scale = length / arrow  # metres of vector per metre of map
+    arrows = ax.quiver(positions[:, 0], positions[:, 1], vectors[:, 0], vectors[:, 1], angles="xy",
+                       scale_units="xy", scale=scale, width=0.003, color="C0", label="vector")
+    _vector_key(ax, arrows, length, f"{length / 1000:.3g} km")
     if covariances is not None:
         major, minor, angle = error_ellipses(covariances)
-        tips = positions / 1000.0 + vectors / scale
+        factor = ellipse_magnification(np.asarray(major) / scale, arrow)
+        tips = positions + vectors / scale
         for k in np.nonzero(np.isfinite(major) & np.isfinite(tips).all(axis=1))[0]:
-            ax.add_patch(Ellipse(tips[k], 2 * major[k] / scale, 2 * minor[k] / scale, angle=np.degrees(angle[k]),
-                                 fill=False, color="C3", lw=0.6))
-        ax.plot([], [], color="C3", lw=0.6, label="95 % error ellipse")
-        ax.legend(loc="lower right", fontsize=8)
+            ax.add_patch(Ellipse(tips[k], 2 * factor * major[k] / scale, 2 * factor * minor[k] / scale,
+                                 angle=np.degrees(angle[k]), fill=False, color="C3", lw=0.6))
+        ax.plot([], [], color="C3", lw=0.6, label=f"95 % error ellipse\n({_magnification_text(factor)})")
     ax.set_aspect("equal")
-    ax.set_xlabel("x (km)")
-    ax.set_ylabel("y (km)")
+    _kilometre_axes(ax, crs_name(projection))
     ax.set_title(f"{title}\n{label}", fontsize=9)
-    return _save(fig, path)
+    _legend_outside(ax)
+    return fig
 
 
-def plot_navigation_errors(path: str | os.PathLike, curves, title: str) -> Path:
-    """Estimated navigation-error curves with their ±1σ bands.
+def plot_vectors(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`vectors_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(vectors_figure(*args, **options), path)
+
+
+def navigation_errors_figure(curves, title: str) -> Figure:
+    """Estimated navigation-error curves with their ±1σ bands, one distinct colour per curve, the legend beside.
 
     Args:
         curves: sequence of ``(label, times (n,) s, errors (n, 2) m north/east, sigma (n, 2) m)``.
     """
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for k, (label, times, errors, sigma) in enumerate(curves):
+    columns = 1 + len(curves) // 24
+    fig, axes = _figure(8.0 + 1.6 * columns, 6.0, 2, 1, sharex=True)
+    for colour, (label, times, errors, sigma) in zip(_colours(len(curves)), curves, strict=True):
         minutes = np.asarray(times) / 60.0
         for component, ax in enumerate(axes):
-            ax.plot(minutes, errors[:, component] / 1000.0, color=f"C{k % 10}", lw=1, label=label)
+            ax.plot(minutes, errors[:, component] / 1000.0, color=colour, lw=1, label=label)
             ax.fill_between(minutes, (errors[:, component] - sigma[:, component]) / 1000.0,
-                            (errors[:, component] + sigma[:, component]) / 1000.0, color=f"C{k % 10}", alpha=0.2)
+                            (errors[:, component] + sigma[:, component]) / 1000.0, color=colour, alpha=0.2)
+    axes[0].fill_between([], [], [], color="0.5", alpha=0.2, label="±1σ band")
     axes[0].set_ylabel("north error (km)")
     axes[1].set_ylabel("east error (km)")
     axes[1].set_xlabel("time (min)")
     axes[0].set_title(title, fontsize=9)
-    if len(curves) <= 12:
-        axes[0].legend(fontsize=7, ncol=4)
+    _legend_outside(axes[0], ncol=columns)
     for ax in axes:
         ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return fig
 
 
-def plot_tie_discrepancies(path: str | os.PathLike, before, after) -> Path:
+def plot_navigation_errors(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`navigation_errors_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(navigation_errors_figure(*args, **options), path)
+
+
+def tie_discrepancies_figure(before, after) -> Figure:
     """Tie-point discrepancies (across, along track; metres) before and after the internal adjustment (source 000,
-    Fig. 4)."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.8))
-    for ax, values, title in zip(axes, (before, after), ("before internal adjustment", "after"), strict=True):
+    Fig. 4); ``before`` ``None``: one panel, after a (simultaneous) adjustment only."""
+    panels = [(before, "before internal adjustment"), (after, "after internal adjustment")] if before is not None \
+        else [(after, "after the simultaneous adjustment")]
+    fig, axes = _figure(5.0 * len(panels) + 0.5, 4.8, 1, len(panels), squeeze=False)
+    finite = np.concatenate([np.ravel(np.asarray(v, float)) for v, _ in panels]) / 1000.0
+    finite = finite[np.isfinite(finite)]
+    limit = 1.1 * float(np.max(np.abs(finite))) if finite.size and np.max(np.abs(finite)) > 0 else 1.0
+    for ax, (values, title) in zip(axes[0], panels, strict=True):
         values = np.asarray(values, float) / 1000.0
-        ax.scatter(values[:, 0], values[:, 1], s=8)
+        ax.scatter(values[:, 0], values[:, 1], s=8, label="tie point")
         rms = np.sqrt(np.mean(values**2, axis=0)) if values.size else (np.nan, np.nan)
-        ax.set_title(f"{title}: rms ±{rms[0]:.2f} km across, ±{rms[1]:.2f} km along", fontsize=9)
+        ax.set_title(f"{title}\nrms {rms[0]:.2f} km across, {rms[1]:.2f} km along", fontsize=9)
         ax.set_xlabel("across-track discrepancy (km)")
         ax.set_ylabel("along-track discrepancy (km)")
         ax.axhline(0, color="0.8", lw=0.5)
         ax.axvline(0, color="0.8", lw=0.5)
-    return _save(fig, path)
+        ax.set_xlim(-limit, limit)
+        ax.set_ylim(-limit, limit)
+        ax.set_aspect("equal")
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(5, prune="lower"))  # no clash at the corner
+    return fig
 
 
-def plot_box_averages(path: str | os.PathLike, boxes, title: str, background=None) -> Path:
+def plot_tie_discrepancies(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`tie_discrepancies_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(tie_discrepancies_figure(*args, **options), path)
+
+
+def box_averages_figure(boxes, title: str, background=None, projection=None) -> Figure:
     """Box-averaged velocity vectors with their standard-deviation rectangles at the arrow tips (source 001,
-    Figure 4-7): ``boxes`` a :class:`~seaice_jax.drift.kinematics.BoxAverages` (m, m/s)."""
+    Figure 4-7): ``boxes`` a :class:`~seaice_jax.drift.kinematics.BoxAverages` (m, m/s); the number under each
+    arrow is the count of velocities averaged."""
     from matplotlib.patches import Rectangle
 
-    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    fig, ax = _figure(8.0, 6.0)
     if background is not None:
-        ax.scatter(*np.asarray(background).T / 1000.0, s=2, color="0.75", zorder=0)
+        ax.scatter(*np.asarray(background).T, s=2, color="0.75", zorder=0, label="floe positions")
     speed = np.hypot(boxes.u, boxes.v)
     reference = float(np.nanmax(speed)) if speed.size else 0.1
     columns = np.unique(np.asarray(boxes.x, float))
-    spacing_km = float(np.nanmin(np.diff(columns))) / 1000.0 if columns.size > 1 else 125.0
-    scale = max(reference, 1e-9) / (0.4 * spacing_km)  # m/s per km of map
-    x, y = boxes.x / 1000.0, boxes.y / 1000.0
-    arrows = ax.quiver(x, y, boxes.u, boxes.v, angles="xy", scale_units="xy", scale=scale, width=0.004, color="C0")
+    spacing = float(np.nanmin(np.diff(columns))) if columns.size > 1 else 125e3
+    scale = max(reference, 1e-9) / (0.4 * spacing)  # m/s per metre of map
+    x, y = np.asarray(boxes.x, float), np.asarray(boxes.y, float)
+    arrows = ax.quiver(x, y, boxes.u, boxes.v, angles="xy", scale_units="xy", scale=scale, width=0.004, color="C0",
+                       label="box-average velocity")
     for k in range(x.size):
         tip = (x[k] + boxes.u[k] / scale, y[k] + boxes.v[k] / scale)
         w, h = 2 * boxes.sigma_u[k] / scale, 2 * boxes.sigma_v[k] / scale
         ax.add_patch(Rectangle((tip[0] - w / 2, tip[1] - h / 2), w, h, fill=False, color="C3", lw=0.8))
         ax.annotate(str(boxes.count[k]), (x[k], y[k]), fontsize=6, color="0.3", xytext=(2, -8),
                     textcoords="offset points")
-    ax.quiverkey(arrows, 0.82, 1.02, reference, f"{reference * 86.4:.1f} km/day", labelpos="E", coordinates="axes")
+    _vector_key(ax, arrows, reference, f"{reference * 86.4:.3g} km/day")
     ax.plot([], [], color="C3", lw=0.8, label="±1 standard deviation")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.plot([], [], " ", label="numbers: velocities per box")
     ax.set_aspect("equal")
-    ax.set_xlabel("grid x (km)")
-    ax.set_ylabel("grid y (km)")
+    _kilometre_axes(ax, crs_name(projection))
     ax.set_title(title, fontsize=9)
-    return _save(fig, path)
+    _legend_outside(ax)
+    return fig
 
 
-def plot_velocity_series(path: str | os.PathLike, series, title: str, epoch_label: str) -> Path:
-    """Box-averaged velocity per day (source 001, Figure 4-5): u and v (km/day) against days, one line per box."""
-    fig, axes = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
-    for key, entry in series.items():
+def plot_box_averages(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`box_averages_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(box_averages_figure(*args, **options), path)
+
+
+def velocity_series_figure(series, title: str, epoch_label: str) -> Figure:
+    """Box-averaged velocity per day (source 001, Figure 4-5): u and v (km/day) against days, one line per box,
+    error bars ±1 standard deviation."""
+    columns = 1 + len(series) // 24
+    fig, axes = _figure(8.0 + 1.6 * columns, 5.5, 2, 1, sharex=True)
+    for colour, (key, entry) in zip(_colours(len(series)), series.items(), strict=True):
         days = entry["time"] / 86400.0
         for ax, component in zip(axes, ("u", "v"), strict=True):
             ax.errorbar(days, entry[component] * 86.4, yerr=np.nan_to_num(entry[f"sigma_{component}"]) * 86.4,
-                        marker="o", ms=3, capsize=2, label=f"box {key}")
+                        marker="o", ms=3, capsize=2, color=colour, label=f"box {key}")
     for ax, component in zip(axes, ("grid x", "grid y"), strict=True):
         ax.axhline(0, color="0.6", lw=0.6)
         ax.set_ylabel(f"{component} (km/day)")
     axes[1].set_xlabel(f"days since {epoch_label}")
-    axes[0].legend(fontsize=7, ncol=4)
-    axes[0].set_title(title, fontsize=9)
-    return _save(fig, path)
+    axes[0].set_title(f"{title} (bars: ±1 standard deviation)", fontsize=9)
+    _legend_outside(axes[0], ncol=columns)
+    return fig
 
 
-def plot_remapped(path: str | os.PathLike, images, titles, extent_km, vectors=None) -> Path:
-    """Remapped images side by side (NaN white); ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
+def plot_velocity_series(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`velocity_series_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(velocity_series_figure(*args, **options), path)
+
+
+def remapped_figure(images, titles, extent_km, vectors=None, projection=None,
+                  units: str = "image value (as digitized)") -> Figure:
+    """Remapped images side by side (NaN white) on one grey scale with its colour bar (``units``), axes in km of
+    ``projection``; ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
     count = len(images)
-    fig, axes = plt.subplots(1, count, figsize=(3.2 * count, 3.4), squeeze=False)
-    for k, ax in enumerate(axes[0]):
-        ax.imshow(np.ma.masked_invalid(images[k]), cmap="gray", extent=extent_km, origin="upper")
+    columns = min(count, 4)
+    rows = -(-count // columns)
+    fig, axes = _figure(3.0 * columns + 1.2, 3.0 * rows + 0.6, rows, columns, squeeze=False)
+    finite = [np.asarray(image, float)[np.isfinite(image)] for image in images]
+    values = np.concatenate(finite) if any(v.size for v in finite) else np.zeros(1)
+    low, high = np.percentile(values, [1, 99])
+    crs = crs_name(projection)
+    for ax in axes.ravel()[count:]:
+        ax.remove()
+    shown = []
+    for k, ax in enumerate(axes.ravel()[:count]):
+        shown.append(ax.imshow(np.ma.masked_invalid(images[k]), cmap="gray", extent=extent_km, origin="upper",
+                                vmin=low, vmax=high))
         ax.set_title(titles[k], fontsize=8)
-        ax.set_xlabel("x (km)", fontsize=7)
         ax.tick_params(labelsize=6)
         if k == 0 and vectors is not None:
             ax.quiver(*vectors, angles="xy", scale_units="xy", scale=0.2, color="C1", width=0.006)
-    return _save(fig, path)
+        ax.set_xlabel("x (km)", fontsize=7)
+        ax.set_ylabel("y (km)", fontsize=7)
+    fig.colorbar(shown[0], ax=list(axes.ravel()[:count]), label=units, shrink=0.8)
+    fig.suptitle(f"Remapped images on one grid ({crs}); white: no data", fontsize=9)
+    return fig
 
 
-def plot_trajectories(path: str | os.PathLike, floe, x, y, title: str, limit: int = 400) -> Path:
+def plot_remapped(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`remapped_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(remapped_figure(*args, **options), path)
+
+
+def trajectories_figure(floe, x, y, title: str, limit: int = 400, projection=None) -> Figure:
     """Floe trajectories (source 001, Figure 4-3): one line per floe through its fixes (m, in time order of the
     rows), a dot at its first fix; at most ``limit`` floes drawn."""
     floe, x, y = np.asarray(floe), np.asarray(x, float), np.asarray(y, float)
-    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    fig, ax = _figure(8.0, 6.0)
     for f in list(dict.fromkeys(floe.tolist()))[:limit]:
         at = floe == f
-        ax.plot(x[at] / 1000.0, y[at] / 1000.0, lw=0.7, color="C0")
-        ax.plot(x[at][:1] / 1000.0, y[at][:1] / 1000.0, ".", ms=3, color="C3")
+        ax.plot(x[at], y[at], lw=0.7, color="C0")
+        ax.plot(x[at][:1], y[at][:1], ".", ms=3, color="C3")
+    ax.plot([], [], lw=0.7, color="C0", label="trajectory")
+    ax.plot([], [], ".", ms=3, color="C3", label="first fix")
     ax.set_aspect("equal")
-    ax.set_xlabel("grid x (km)")
-    ax.set_ylabel("grid y (km)")
+    _kilometre_axes(ax, crs_name(projection))
     ax.set_title(title, fontsize=9)
-    return _save(fig, path)
+    _legend_outside(ax)
+    return fig
+
+
+def plot_trajectories(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`trajectories_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(trajectories_figure(*args, **options), path)

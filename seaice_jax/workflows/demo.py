@@ -24,6 +24,7 @@ from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import track
 from seaice_jax.io.project import write_project
+from seaice_jax.outputs import output_folder
 from seaice_jax.report.figures import MapLayer, MapPanel, plot_image_field, plot_maps
 from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
 from seaice_jax.sensors.control import ControlPoints
@@ -74,10 +75,10 @@ def _compare_methods(scenario, runs) -> list[str]:
     return lines
 
 
-def _image_sequence(out_dir: Path):
-    """Four simulated NOAA-7-like images of moving pack ice (one cloudy) through the whole workflow, and the
-    tracked drift against the simulation's truth."""
-    sequence = simulate_sequence(0, n_images=4, size=160, clouds=True)
+def _image_sequence(out_dir: Path, images: int = 4, size: int = 160):
+    """``images`` simulated NOAA-7-like images (``size`` pixels square) of moving pack ice (one cloudy) through the
+    whole workflow, and the tracked drift against the simulation's truth."""
+    sequence = simulate_sequence(0, n_images=images, size=size, clouds=True)
     project = write_simulated_sequence(out_dir / "project", sequence=sequence)
     remapped = run_remap(project, out_dir / "remapped", progress=False)
     tracked = run_track(out_dir / "remapped", out_dir / "drift", progress=False)
@@ -97,8 +98,8 @@ def _image_sequence(out_dir: Path):
         measured = np.stack([vectors["dx"], vectors["dy"]], 1)[d.good]
         length = np.hypot(*(measured - truth).T)
         errors[label] = (float(np.median(length)) / 1000, float(np.sqrt(np.mean(length**2))) / 1000, d.good.sum())
-    lines = ["  satellite image sequence (4 simulated NOAA-7 passes over Lancaster-like pack ice, one day apart; "
-             "sequence/):",
+    lines = [f"  satellite image sequence ({images} simulated NOAA-7 passes over Lancaster-like pack ice, one day "
+             "apart; sequence/):",
              *["    " + line for line in remapped.report.splitlines()],
              *["    " + line for line in tracked.report.splitlines()],
              *["    " + line for line in speeds.report.splitlines()],
@@ -294,15 +295,18 @@ def _summary(radar: RadarStripCheck, image: ImageCheck, fit_report: str) -> list
     ]
 
 
-def run_demo(out_dir: str | os.PathLike = "seaice-demo") -> DemoResult:
-    """Run the demo and write its files into ``out_dir`` (created if missing)."""
+def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False, quick: bool = False) -> DemoResult:
+    """Run the demo and write its files into ``out_dir`` as one run (:func:`~seaice_jax.outputs.output_folder`;
+    ``overwrite`` replaces an existing one whole); ``quick``: a shorter image sequence (3 images of 128 pixels
+    instead of 4 of 160), the same steps."""
     out_dir = Path(out_dir)
-    radar, image = geolocate_radar_strip(), geolocate_figure_3_3()
-    files = _write_geolocation(radar, image, out_dir)
-    fit, fit_report, fit_files = _orbit_fit(image.model, out_dir)
-    block_lines, block_files = _radar_block(out_dir)
-    sequence_lines, sequence_files = _image_sequence(out_dir / "sequence")
-    files += fit_files + block_files + sequence_files
+    with output_folder(out_dir, overwrite) as folder:
+        radar, image = geolocate_radar_strip(), geolocate_figure_3_3()
+        files = _write_geolocation(radar, image, folder.path)
+        fit, fit_report, fit_files = _orbit_fit(image.model, folder.path)
+        block_lines, block_files = _radar_block(folder.path)
+        sequence_lines, sequence_files = _image_sequence(folder.path / "sequence", *((3, 128) if quick else (4, 160)))
+        files = list(folder.final(files + fit_files + block_files + sequence_files))
     lines = [*_summary(radar, image, fit_report), *block_lines, *sequence_lines,
              f"  wrote {len(files)} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "
              "aidjex/simultaneous/report.txt, sequence/film.gif, ...)"]

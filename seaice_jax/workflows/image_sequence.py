@@ -8,6 +8,7 @@ CLI's ``remap``, ``track``, ``velocities`` and ``movie`` are thin wrappers aroun
 
 import json
 import os
+import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Generic, TypeVar, cast
@@ -40,8 +41,22 @@ from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
 from seaice_jax.imagery.movie import render_frames, write_movie
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, track
-from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_trajectories_geojson
-from seaice_jax.io.sequence import SequenceProject, make_grid, named_projection, read_sequence, write_sequence
+from seaice_jax.io.products import (
+    write_drift_netcdf,
+    write_fixes_geojson,
+    write_geotiff,
+    write_osisaf_drift,
+    write_trajectories_geojson,
+)
+from seaice_jax.io.sequence import (
+    MEMORY_BUDGET,
+    SequenceProject,
+    make_grid,
+    named_projection,
+    read_sequence,
+    write_sequence,
+)
+from seaice_jax.outputs import output_file, output_folder
 from seaice_jax.report.figures import (
     plot_box_averages,
     plot_remapped,
@@ -49,7 +64,7 @@ from seaice_jax.report.figures import (
     plot_vectors,
     plot_velocity_series,
 )
-from seaice_jax.simulate.satellite import land_mask, simulate_sequence
+from seaice_jax.simulate.satellite import land_mask, scene_xy, simulate_sequence, true_displacement
 from seaice_jax.timefmt import time_after
 
 Result = TypeVar("Result")
@@ -158,13 +173,31 @@ def geolocation_sigma(models, covariance, grid: MapGrid) -> np.ndarray:
     return np.stack(maps)
 
 
-def remap_sequence(project: SequenceProject, method: str = "bilinear", fill: int = 1, progress: bool = False):
-    """Rectify every image and remap the sequence into its grid.
+def adopted_models(project: SequenceProject, models_path: str | os.PathLike):
+    """The scan models and their joint covariance from a models file (:func:`save_models`, e.g. ``seaice adjust``),
+    as :func:`rectify_images` returns them (each image's control-point deviations from its adopted model)."""
+    models, covariance, sigma0 = load_models(models_path, project)
+    rectifications = []
+    for image, model in zip(project.images, models, strict=True):
+        north = east = np.zeros(0)
+        ids = ()
+        if image.control is not None:
+            north, east = (np.asarray(a) for a in control_point_deviations(model, image.control))
+            ids = image.control.ids
+        rectifications.append(Rectification(image.name, model, len(ids), sigma0, ids, north, east))
+    return tuple(rectifications), covariance
+
+
+def remap_sequence(project: SequenceProject, method: str = "bilinear", fill: int = 1, progress: bool = False,
+                   models_path: str | os.PathLike | None = None):
+    """Rectify every image (or adopt the models of ``models_path``: :func:`adopted_models`) and remap the sequence
+    into its grid.
 
     Returns:
         ``(stack, rectifications)``: the :class:`RemappedStack` and one :class:`Rectification` per image.
     """
-    rectifications, covariance = rectify_images(project, progress)
+    rectifications, covariance = (rectify_images(project, progress) if models_path is None
+                                  else adopted_models(project, models_path))
     models = tuple(r.model for r in rectifications)
     values, valid = remap([im.data for im in project.images], list(models), project.grid, method=method, fill=fill)
     stack = RemappedStack(np.asarray(values), np.asarray(valid), np.array([im.time for im in project.images]),
@@ -192,19 +225,73 @@ _STORED = ("values", "valid", "times", "names", "epoch", "grid", "sigma", "covar
            "directions", "shapes")
 
 
+def _model_arrays(models) -> dict:
+    """The scan models as arrays (unknowns, directions, shapes, orbits) for an ``.npz``."""
+    return {"parameters": np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
+            "directions": np.array([m.direction for m in models]),
+            "shapes": np.array([[m.n_scans, m.n_pixels] for m in models]),
+            "orbits": np.array([[float(m.orbit.inclination), float(m.orbit.period), float(m.orbit.altitude),
+                                 float(m.orbit.earth_day), float(m.orbit.radius)] for m in models])}
+
+
+def _stored_models(stored: dict) -> tuple[ScanModel, ...]:
+    return tuple(ScanModel(**dict(zip(SCAN_UNKNOWNS, p, strict=True)), orbit=Orbit(*o),
+                           direction=cast(Direction, str(d)), n_pixels=int(s[1]), n_scans=int(s[0]))
+                 for p, o, d, s in zip(stored["parameters"], stored["orbits"], stored["directions"], stored["shapes"],
+                                       strict=True))
+
+
 def save_stack(path: str | os.PathLike, stack: RemappedStack) -> Path:
     """Write ``stack`` as a compressed ``.npz`` (atomically), with its grid and scan models."""
-    models = stack.models
     with atomic_path(path) as temporary, open(temporary, "wb") as stream:
         np.savez_compressed(
             stream, values=stack.values, valid=stack.valid, times=stack.times, names=np.array(stack.names),
             epoch=stack.epoch, grid=json.dumps(stack.grid_spec), sigma=stack.sigma, covariance=stack.covariance,
-            parameters=np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
-            directions=np.array([m.direction for m in models]),
-            shapes=np.array([[m.n_scans, m.n_pixels] for m in models]),
-            orbits=np.array([[float(m.orbit.inclination), float(m.orbit.period), float(m.orbit.altitude),
-                              float(m.orbit.earth_day), float(m.orbit.radius)] for m in models]))
+            **_model_arrays(stack.models))
     return Path(path)
+
+
+_MODEL_FILE = ("names", "covariance", "sigma0", "method", "parameters", "orbits", "directions", "shapes")
+
+
+def save_models(path: str | os.PathLike, names, models, covariance, sigma0: float, method: str) -> Path:
+    """Write the scan models of a sequence with the joint covariance ``(5·images, 5·images)`` of their unknowns
+    (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`, cross-covariances between images included), σ̂0 and the
+    method that found them, as an ``.npz`` (atomically) that ``seaice remap --models`` adopts."""
+    with atomic_path(path) as temporary, open(temporary, "wb") as stream:
+        np.savez_compressed(stream, names=np.array(names), covariance=np.asarray(covariance, float),
+                            sigma0=float(sigma0), method=method, **_model_arrays(models))
+    return Path(path)
+
+
+def load_models(path: str | os.PathLike, project: SequenceProject):
+    """``(models, covariance, sigma0)`` from a file of :func:`save_models`, checked against ``project``.
+
+    Raises:
+        SeaiceError: naming the file and what does not match the project (image names, image sizes, the
+            covariance's shape).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise SeaiceError(f"{path}: file not found (run `seaice adjust` first)")
+    with np.load(path) as data:
+        stored = {k: data[k] for k in data.files}
+    missing = [k for k in _MODEL_FILE if k not in stored]
+    if missing:
+        raise SeaiceError(f"{path}: no {', '.join(missing)}: not a models file of `seaice adjust`")
+    names = tuple(str(n) for n in stored["names"])
+    expected = tuple(im.name for im in project.images)
+    if names != expected:
+        raise SeaiceError(f"{path}: images {list(names)} differ from the project's {list(expected)}")
+    models = _stored_models(stored)
+    for image, model in zip(project.images, models, strict=True):
+        if image.data.shape != (model.n_scans, model.n_pixels):
+            raise SeaiceError(f"{path}: image {image.name!r}: model of {model.n_scans} x {model.n_pixels} for an "
+                              f"image of {image.data.shape[0]} x {image.data.shape[1]}")
+    covariance = np.asarray(stored["covariance"], float)
+    if covariance.shape != (_UNKNOWNS * len(models),) * 2:
+        raise SeaiceError(f"{path}: covariance of shape {covariance.shape} for {len(models)} images")
+    return models, covariance, float(stored["sigma0"])
 
 
 def load_remapped(directory: str | os.PathLike) -> RemappedStack:
@@ -212,19 +299,19 @@ def load_remapped(directory: str | os.PathLike) -> RemappedStack:
     path = Path(directory) / "remapped.npz"
     if not path.exists():
         raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
-    with np.load(path) as data:
-        stored = {k: data[k] for k in data.files}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stored = {k: data[k] for k in data.files}
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as error:
+        raise SeaiceError(f"{path}: truncated or not a remapped stack ({error}); run `seaice remap` again") from None
     missing = [k for k in _STORED if k not in stored]
     if missing:
         raise SeaiceError(f"{path}: no {', '.join(missing)} (written by another version?): run `seaice remap` again")
     spec = json.loads(str(stored["grid"]))
     grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
-    models = tuple(ScanModel(**dict(zip(SCAN_UNKNOWNS, p, strict=True)), orbit=Orbit(*o),
-                             direction=cast(Direction, str(d)), n_pixels=int(s[1]), n_scans=int(s[0]))
-                   for p, o, d, s in zip(stored["parameters"], stored["orbits"], stored["directions"], stored["shapes"],
-                                         strict=True))
     return RemappedStack(stored["values"], stored["valid"], stored["times"], tuple(str(n) for n in stored["names"]),
-                         str(stored["epoch"]), grid, spec, models, stored["covariance"], stored["sigma"])
+                         str(stored["epoch"]), grid, spec, _stored_models(stored), stored["covariance"],
+                         stored["sigma"])
 
 
 def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathLike,
@@ -247,17 +334,22 @@ def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathL
     x, y = (np.asarray(a) / 1000 for a in stack.grid.xy())
     files.append(plot_remapped(out / "remapped.png", stack.values, [
         f"{n}\n{label[:16]}" for n, label in zip(stack.names, labels, strict=True)], [x.min(), x.max(), y.min(),
-                                                                                      y.max()]))
+                                                                                      y.max()],
+        projection=stack.grid.projection))
     return tuple(files)
 
 
 def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
-              fill: int = 1, progress: bool = True) -> Step[RemappedStack]:
-    """Rectify (fit the scan model of every image with control points) and remap the sequence into its grid;
-    write it (:func:`write_remapped`)."""
-    stack, rectifications = remap_sequence(read_sequence(project_path), method, fill, progress)
-    return Step(write_remapped(stack, rectifications, out_dir, progress), remap_report(stack, rectifications,
-                                                                                         method, fill), stack)
+              fill: int = 1, progress: bool = True, overwrite: bool = False,
+              models_path: str | os.PathLike | None = None) -> Step[RemappedStack]:
+    """Rectify (fit the scan model of every image with control points, or adopt those of ``models_path``, e.g.
+    written by ``seaice adjust``) and remap the sequence into its grid; write it (:func:`write_remapped`) as one
+    run (:func:`~seaice_jax.outputs.output_folder`)."""
+    inputs = (project_path,) if models_path is None else (project_path, models_path)
+    with output_folder(out_dir, overwrite, inputs=inputs) as folder:
+        stack, rectifications = remap_sequence(read_sequence(project_path), method, fill, progress, models_path)
+        files = folder.final(write_remapped(stack, rectifications, folder.path, progress))
+    return Step(files, remap_report(stack, rectifications, method, fill), stack)
 
 
 # ------------------------------------------------------------------------------------------------ track
@@ -406,8 +498,9 @@ def track_report(stack: RemappedStack, tracked: TrackedSequence) -> str:
     return "\n".join(lines)
 
 
-def _write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: Path) -> list[Path]:
-    """``drift_<a>_<b>.nc`` (CF-NetCDF on the lattice) and its figure ``drift_<a>_<b>.png``."""
+def _write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: Path, layout: str) -> list[Path]:
+    """``drift_<a>_<b>.nc`` (CF-NetCDF on the lattice), its figure ``drift_<a>_<b>.png`` and, for ``layout``
+    ``"osisaf"``, ``drift_<a>_<b>_osisaf.nc`` in the OSI SAF drift layout."""
     good, shape = pair.good, lattice.shape
     a, b = stack.names[pair.first], stack.names[pair.first + 1]
 
@@ -418,38 +511,48 @@ def _write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: 
               "dY_uncertainty": field(pair.sigma[:, 1]), "status_flag": pair.status.reshape(shape),
               "u_east": field(pair.u_east), "v_north": field(pair.v_north)}
     start = np.stack([pair.x, pair.y], 1)
-    return [write_drift_netcdf(out / f"drift_{a}_{b}.nc", lattice, fields, stack.times[pair.first],
+    osisaf = ([write_osisaf_drift(out / f"drift_{a}_{b}_osisaf.nc", lattice, fields, stack.times[pair.first],
+                                 stack.times[pair.first + 1], stack.epoch, title=f"Sea-ice drift {a} to {b}")]
+              if layout == "osisaf" else [])
+    return osisaf + [write_drift_netcdf(out / f"drift_{a}_{b}.nc", lattice, fields, stack.times[pair.first],
                                stack.times[pair.first + 1], stack.epoch, STATUS, title=f"Sea-ice drift {a} to {b}",
                                deformation=pair.deformation),
             plot_vectors(out / f"drift_{a}_{b}.png", start[good], np.stack([pair.dx, pair.dy], 1)[good],
                          f"Tracked drift {a} -> {b} ({good.sum()} vectors)",
                          f"{pair.interval / 86400:.2f} days; ellipses: 95 % from the stated σ (geolocation and "
                          "tracking)", background=start[~good],
-                         covariances=np.stack([np.diag(v) for v in pair.sigma[good] ** 2]) if good.any() else None)]
+                         covariances=np.stack([np.diag(v) for v in pair.sigma[good] ** 2]) if good.any() else None,
+                         projection=lattice.projection, background_label="points without a good vector")]
 
 
-def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str | os.PathLike) -> tuple[Path, ...]:
+def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str | os.PathLike,
+                  layout: str = "project") -> tuple[Path, ...]:
     """Per pair ``drift_<a>_<b>.nc`` and ``.png`` (vectors with 95 % ellipses); ``floes.csv`` and
-    ``trajectories.geojson`` for the whole sequence."""
+    ``trajectories.geojson`` (lines) and ``fixes.geojson`` (points) for the whole sequence."""
     out = Path(out_dir)
-    files = [path for pair in tracked.pairs for path in _write_pair(stack, tracked.lattice, pair, out)]
+    files = [path for pair in tracked.pairs for path in _write_pair(stack, tracked.lattice, pair, out, layout)]
     records = tracked.records
     files.append(write_records(out / "floes.csv", records))
     files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
                                             records.latitude, records.longitude, records.epoch))
+    files.append(write_fixes_geojson(out / "fixes.geojson", records.floe, records.time, records.latitude,
+                                     records.longitude, records.epoch))
     return tuple(files)
 
 
 def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
               options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
-              progress: bool = True) -> Step[TrackedSequence]:
+              progress: bool = True, overwrite: bool = False, layout: str = "project") -> Step[TrackedSequence]:
     """Track the ice through the stack written by :func:`run_remap` (:func:`track_sequence`) and write it
-    (:func:`write_tracked`)."""
-    stack = load_remapped(remapped_dir)
-    if len(stack.names) < 2:
-        raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
-    tracked = track_sequence(stack, options, tracking_sigma, progress)
-    return Step(write_tracked(stack, tracked, out_dir), track_report(stack, tracked), tracked)
+    (:func:`write_tracked`, ``layout`` ``"project"`` or ``"osisaf"``) as one run
+    (:func:`~seaice_jax.outputs.output_folder`)."""
+    with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
+        stack = load_remapped(remapped_dir)
+        if len(stack.names) < 2:
+            raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
+        tracked = track_sequence(stack, options, tracking_sigma, progress)
+        files = folder.final(write_tracked(stack, tracked, folder.path, layout))
+    return Step(files, track_report(stack, tracked), tracked)
 
 
 # ------------------------------------------------------------------------------------------------ velocities
@@ -525,7 +628,7 @@ def _deformation_columns(result: FloeKinematics) -> dict:
 
 def write_kinematics(result: FloeKinematics, out_dir: str | os.PathLike) -> tuple[Path, ...]:
     """``velocities.csv``, ``box_averages.csv`` and ``.png``, ``velocity_series.png``, ``deformation.csv``,
-    ``trajectories.geojson`` and ``trajectories.png``."""
+    ``trajectories.geojson``, ``fixes.geojson`` and ``trajectories.png``."""
     out = Path(out_dir)
     v, boxes, records = result.velocities, result.boxes, result.records
     files = [write_csv(out / "velocities.csv", {
@@ -544,6 +647,8 @@ def write_kinematics(result: FloeKinematics, out_dir: str | os.PathLike) -> tupl
         files.append(write_csv(out / "deformation.csv", _deformation_columns(result)))
     files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
                                             records.latitude, records.longitude, records.epoch))
+    files.append(write_fixes_geojson(out / "fixes.geojson", records.floe, records.time, records.latitude,
+                                     records.longitude, records.epoch))
     files.append(plot_trajectories(out / "trajectories.png", records.floe, result.x, result.y,
                                    "Floe trajectories (start: dot)"))
     return tuple(files)
@@ -560,12 +665,14 @@ def kinematics_report(result: FloeKinematics) -> str:
 
 def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, projection: str = "nsidc-north",
                    box_size: float = 50_000.0, velocity_sigma: float | None = None,
-                   images=None) -> Step[FloeKinematics]:
+                   images=None, overwrite: bool = False) -> Step[FloeKinematics]:
     """Velocities, box averages (Figure 4-7), daily box series (Figure 4-5), deformation and trajectories from a
-    floe record file (manual or from ``seaice track``; ``images``: the known image ids, for validation); see
-    :func:`floe_kinematics` for the other arguments."""
-    result = floe_kinematics(read_records(records_path, images=images), projection, box_size, velocity_sigma)
-    return Step(write_kinematics(result, out_dir), kinematics_report(result), result)
+    floe record file (manual or from ``seaice track``; ``images``: the known image ids, for validation), written as
+    one run (:func:`~seaice_jax.outputs.output_folder`); see :func:`floe_kinematics` for the other arguments."""
+    with output_folder(out_dir, overwrite, inputs=(records_path,)) as folder:
+        result = floe_kinematics(read_records(records_path, images=images), projection, box_size, velocity_sigma)
+        files = folder.final(write_kinematics(result, folder.path))
+    return Step(files, kinematics_report(result), result)
 
 
 # ------------------------------------------------------------------------------------------------ film
@@ -583,10 +690,18 @@ def _floe_pixels(records_path, stack: RemappedStack):
 
 
 def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land_mask=None, records=None,
-              fps: float = 2.0, scale: int = 2) -> Step[None]:
+              fps: float = 2.0, scale: int = 2, overwrite: bool = False) -> Step[None]:
     """A time-lapse film (GIF or MP4) of the remapped sequence with date labels, the land filled (``land_mask``:
-    a ``.npy`` bool array on the grid) and the tracked floes of a record file marked."""
+    a ``.npy`` bool array on the grid) and the tracked floes of a record file marked; ``fps`` > 0, ``scale`` >= 1
+    and the film within :data:`~seaice_jax.io.sequence.MEMORY_BUDGET`."""
+    if not (np.isfinite(fps) and fps > 0 and int(scale) == scale and scale >= 1):
+        raise SeaiceError(f"film: fps must be > 0 and scale an integer >= 1, got fps {fps}, scale {scale}")
     stack = load_remapped(remapped_dir)
+    film_bytes = 3 * len(stack.names) * stack.grid.shape[0] * stack.grid.shape[1] * scale**2
+    if film_bytes > MEMORY_BUDGET:
+        raise SeaiceError(f"--scale {scale}: {len(stack.names)} frames of {stack.grid.shape[1] * scale} x "
+                          f"{stack.grid.shape[0] * scale} pixels need {film_bytes / 2**30:.1f} GiB, more than the "
+                          f"{MEMORY_BUDGET / 2**30:.0f} GiB budget")
     land = None
     if land_mask is not None:
         land = np.load(land_mask)
@@ -595,7 +710,8 @@ def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land
     points = None if records is None else _floe_pixels(records, stack)
     labels = [time_after(stack.epoch, t)[:16].replace("T", " ") for t in stack.times]
     frames = render_frames(stack.values, labels, land, points, scale)
-    path = write_movie(out_path, frames, fps)
+    with output_file(out_path, overwrite, inputs=(remapped_dir,)) as staging:
+        path, = staging.final([write_movie(staging.path / staging.target.name, frames, fps)])
     return Step((path,), f"film of {len(frames)} frames ({frames.shape[2]} x {frames.shape[1]} pixels) -> {path}",
                 None)
 
@@ -608,13 +724,60 @@ SIMULATED_GRID = {"projection": "nsidc-north", "centre_deg": [74.0, -85.0], "pix
 """The map grid of :func:`write_simulated_sequence`'s projects: 375 km square at 2.5 km, EPSG:3413."""
 
 
+STATIC_MARGIN = 3000.0
+"""m: the static mask of a simulated sequence stops this far inside the fast-ice edge (a tie's patch there does not
+move)."""
+
+
+def true_drift_fields(sequence, grid: MapGrid, first: int) -> dict:
+    """The true displacement of every cell centre of ``grid`` from image ``first`` of a simulated ``sequence`` to
+    the next, as the fields of :func:`~seaice_jax.io.products.write_drift_netcdf` (``dX, dY`` m along the grid's
+    axes, zero σ, ``status_flag`` GOOD, ``u_east, v_north`` m/s)."""
+    scene, a, b = sequence.scene, sequence.images[first], sequence.images[first + 1]
+    x, y = (np.asarray(v).ravel() for v in grid.xy())
+    start = np.stack([np.asarray(v) for v in scene.projection.forward(*grid.projection.inverse(x, y))], 1)
+    end = start + true_displacement(scene, start, a.time, b.time)
+    end_x, end_y = (np.asarray(v) for v in grid.projection.forward(*scene.projection.inverse(end[:, 0], end[:, 1])))
+    dx, dy = end_x - x, end_y - y
+    interval = b.time - a.time
+    east, north = (np.asarray(v) for v in grid_to_east_north(grid.projection, x, y, dx / interval, dy / interval))
+    return {"dX": dx.reshape(grid.shape), "dY": dy.reshape(grid.shape), "dX_uncertainty": np.zeros(grid.shape),
+            "dY_uncertainty": np.zeros(grid.shape), "status_flag": np.full(grid.shape, GOOD),
+            "u_east": east.reshape(grid.shape), "v_north": north.reshape(grid.shape)}
+
+
+def write_simulated_truth(sequence, grid: MapGrid, out_dir: str | os.PathLike) -> tuple[Path, ...]:
+    """``truth/models.npz`` (the true scan models, zero covariance: :func:`save_models`) and, for every consecutive
+    pair, ``truth/drift_<a>_<b>.nc``: the true displacement of every grid cell, in the layout of ``seaice
+    track``'s drift files (on the project's grid instead of the tracking lattice)."""
+    out = Path(out_dir) / "truth"
+    out.mkdir(parents=True, exist_ok=True)
+    images = sequence.images
+    files = [save_models(out / "models.npz", [im.name for im in images], [im.model for im in images],
+                         np.zeros((_UNKNOWNS * len(images),) * 2), 0.0, "truth")]
+    for k in range(len(images) - 1):
+        a, b = images[k].name, images[k + 1].name
+        files.append(write_drift_netcdf(out / f"drift_{a}_{b}.nc", grid, true_drift_fields(sequence, grid, k),
+                                        images[k].time, images[k + 1].time, sequence.epoch, STATUS,
+                                        title=f"True sea-ice drift {a} to {b} (simulation)"))
+    return tuple(files)
+
+
 def write_simulated_sequence(out_dir: str | os.PathLike, seed: int = 0, images: int = 6, size: int = 256,
-                             clouds: bool = False, sequence=None) -> Path:
+                             clouds: bool = False, sequence=None, overwrite: bool = False) -> Path:
     """Simulate a Lancaster-Sound-like sequence (:func:`~seaice_jax.simulate.satellite.simulate_sequence`) and
-    write it as a project with ``land_mask.npy`` on its grid (for films)."""
-    sequence = sequence or simulate_sequence(seed, n_images=images, size=size, clouds=clouds)
-    out = Path(out_dir)
-    grid = make_grid(**{k: SIMULATED_GRID[k] for k in ("projection", "centre_deg", "pixel_m", "shape")})
-    with atomic_path(out / "land_mask.npy") as temporary, open(temporary, "wb") as stream:
-        np.save(stream, land_mask(sequence.scene, grid))
-    return write_sequence(sequence, out, SIMULATED_GRID)
+    write it as a project with ``land_mask.npy`` on its grid (for films), ``static_mask.npy`` (land and fast ice
+    :data:`STATIC_MARGIN` inside its edge: where ``seaice adjust`` seeks ties) and the truth
+    (:func:`write_simulated_truth`), as one run (:func:`~seaice_jax.outputs.output_folder`)."""
+    with output_folder(out_dir, overwrite) as folder:
+        sequence = sequence or simulate_sequence(seed, n_images=images, size=size, clouds=clouds)
+        grid = make_grid(**{k: SIMULATED_GRID[k] for k in ("projection", "centre_deg", "pixel_m", "shape")})
+        offset = np.asarray(sequence.scene.coast_offset(scene_xy(sequence.scene, grid)))
+        masks = {"land_mask.npy": land_mask(sequence.scene, grid),
+                 "static_mask.npy": offset > -float(sequence.scene.fast_ice_width) + STATIC_MARGIN}
+        for name, mask in masks.items():
+            with atomic_path(folder.path / name) as temporary, open(temporary, "wb") as stream:
+                np.save(stream, mask)
+        write_simulated_truth(sequence, grid, folder.path)
+        project, = folder.final([write_sequence(sequence, folder.path, SIMULATED_GRID)])
+    return project

@@ -18,6 +18,7 @@ from seaice_jax.drift.kinematics import DriftVectors, TransformFit, drift_vector
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv, write_geojson
 from seaice_jax.io.project import Project, read_project
+from seaice_jax.outputs import output_folder
 from seaice_jax.report.figures import plot_navigation_errors, plot_tie_discrepancies, plot_vectors
 
 METHODS = ("simultaneous", "sequential")
@@ -358,7 +359,7 @@ def _simultaneous_figures(result: BlockAnalysis, out: Path) -> list[Path]:
     for k in range(1, len(result.project.coverages) + 1):
         ties = result.adjustment.tie_discrepancies(k - 1)
         if ties.size:
-            files.append(plot_tie_discrepancies(out / f"tie_discrepancies_c{k}.png", ties, ties))
+            files.append(plot_tie_discrepancies(out / f"tie_discrepancies_c{k}.png", None, ties))
     return files
 
 
@@ -394,8 +395,11 @@ def write_block(result: BlockAnalysis, out_dir: str | os.PathLike, report: str |
 
 
 def run_block(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "simultaneous",
-              options: BlockOptions | None = None) -> BlockRun:
-    """Read the project, :func:`adjust_block` it, and :func:`write_block` its files into ``out_dir``."""
-    result = adjust_block(read_project(project_path), method, options)
-    report = block_report(result)
-    return BlockRun(write_block(result, out_dir, report), report, result)
+              options: BlockOptions | None = None, overwrite: bool = False) -> BlockRun:
+    """Read the project, :func:`adjust_block` it, and :func:`write_block` its files into ``out_dir`` (one run, one
+    folder: :func:`~seaice_jax.outputs.output_folder`; ``overwrite`` replaces an existing one whole)."""
+    with output_folder(out_dir, overwrite, inputs=(project_path,)) as folder:
+        result = adjust_block(read_project(project_path), method, options)
+        report = block_report(result)
+        files = folder.final(write_block(result, folder.path, report))
+    return BlockRun(files, report, result)

@@ -1,0 +1,255 @@
+"""One run, one output: a command's folder (or file) is written into a temporary folder beside it and moved into
+place only when complete.
+
+The policy, for every command that writes:
+
+- an existing target is refused unless ``overwrite`` (``--overwrite``); with it the target is replaced whole, never
+  merged (an empty existing folder counts as absent);
+- a lock (``.NAME.lock`` beside the target, an ``flock`` the kernel releases when the process dies) refuses a second
+  run into the same target while one is writing, with an error naming the target;
+- SIGINT and SIGTERM while the run holds its target raise :class:`Interrupted` (remembered, so one swallowed by a
+  callback is raised again before the result is moved into place); the target is then left as it was (the old
+  complete result, or nothing) and the temporary folder is removed;
+- temporary folders left by a killed (SIGKILL) run are removed by the next run into the same target.
+
+The move into place is one ``rename`` (``renameat2(RENAME_EXCHANGE)`` when replacing a folder, where the C library
+has it), with SIGINT and SIGTERM held back while it runs.
+"""
+
+import contextlib
+import ctypes
+import dataclasses
+import errno
+import fcntl
+import os
+import shutil
+import signal
+import tempfile
+import threading
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.files import current_umask
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_pending: list[int] = []
+"""Signals received while :func:`interrupts_raise` is active, in order (cleared when it is entered afresh)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A SIGINT or SIGTERM stopped the run (a ``KeyboardInterrupt``, so ``except Exception`` does not swallow it).
+
+    Attributes:
+        signum: the signal's number. exit_code: ``128 + signum`` (130 for Ctrl-C, 143 for SIGTERM).
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+        self.signum = signum
+        self.exit_code = 128 + signum
+
+
+def check_interrupted() -> None:
+    """Raise :class:`Interrupted` if a signal arrived (even one whose exception was swallowed, e.g. raised inside a
+    garbage-collection callback) since :func:`interrupts_raise` was entered."""
+    if _pending:
+        raise Interrupted(_pending[-1])
+
+
+def _raise_interrupted(signum, frame):
+    _pending.append(signum)
+    raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def interrupts_raise() -> Iterator[None]:
+    """While the block runs, SIGINT and SIGTERM raise :class:`Interrupted` (SIGTERM's default would kill the process
+    without cleaning up); :func:`check_interrupted` runs when the block ends. A no-op outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    outermost = all(signal.getsignal(s) is not _raise_interrupted for s in _SIGNALS)
+    if outermost:
+        _pending.clear()
+    previous = {s: signal.signal(s, _raise_interrupted) for s in _SIGNALS}
+    try:
+        yield
+        check_interrupted()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM are delivered only after the block (which must not be cut in half)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputFolder:
+    """Where a run writes: ``path`` (the temporary folder) and ``target`` (where it goes when complete)."""
+
+    path: Path
+    target: Path
+
+    def final(self, paths: Iterable[str | os.PathLike]) -> tuple[Path, ...]:
+        """``paths`` written under :attr:`path`, as they will be named under :attr:`target`."""
+        return tuple(self.target / Path(p).relative_to(self.path) for p in paths)
+
+
+def _lock(target: Path) -> int:
+    """Take the lock of ``target`` (a file descriptor holding an exclusive ``flock``).
+
+    Raises:
+        SeaiceError: naming ``target``, when another run holds it.
+    """
+    lock = target.parent / f".{target.name}.lock"
+    while True:
+        handle = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(handle)
+            raise SeaiceError(f"{target}: another run is writing into it now (lock {lock}); wait for it to finish "
+                              "or choose another output") from None
+        try:
+            if os.stat(lock).st_ino == os.fstat(handle).st_ino:
+                return handle
+        except FileNotFoundError:
+            pass
+        os.close(handle)  # the previous holder removed the lock file as we opened it: take the new one
+
+
+def _unlock(target: Path, handle: int) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(target.parent / f".{target.name}.lock")
+    os.close(handle)
+
+
+def _leftovers(target: Path) -> list[Path]:
+    """Temporary folders of earlier runs into ``target`` (only called while holding its lock)."""
+    prefix = f".{target.name}."
+    return [target.parent / name for name in os.listdir(target.parent)
+            if name.startswith(prefix) and name.endswith((".partial", ".old"))]
+
+
+def _occupied(target: Path) -> bool:
+    """Whether ``target`` holds a result (a file, or a folder that is not empty)."""
+    if target.is_dir() and not target.is_symlink():
+        return any(os.scandir(target))
+    return os.path.lexists(target)
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return path == folder or folder in path.parents
+
+
+def _check_target(target: Path, folder: bool, overwrite: bool, inputs: Iterable[str | os.PathLike]) -> None:
+    """Refuse a target that is not of the right kind, that holds a result (unless ``overwrite``), or that contains an
+    input or the working folder (replacing it would destroy them)."""
+    if folder and os.path.lexists(target) and (not target.is_dir() or target.is_symlink()):
+        raise SeaiceError(f"{target}: exists and is not a folder; choose another output folder")
+    if not folder and target.is_dir():
+        raise SeaiceError(f"{target}: is a folder; give a file name")
+    resolved = target.resolve()
+    for source in inputs:
+        if _inside(Path(source).resolve(), resolved):
+            raise SeaiceError(f"{target}: contains the input {source}; write the results into another folder")
+    if _inside(Path.cwd().resolve(), resolved) and _occupied(target):
+        raise SeaiceError(f"{target}: contains the working folder; write the results into another folder")
+    if not overwrite and _occupied(target):
+        what = "folder is not empty" if folder else "file exists"
+        raise SeaiceError(f"{target}: the {what}; pass --overwrite to replace it whole (overwrite=True)")
+
+
+def _exchange(first: Path, second: Path) -> bool:
+    """Swap two folders in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the system cannot."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_cwd, rename_exchange = -100, 2
+    if renameat2(at_cwd, os.fsencode(first), at_cwd, os.fsencode(second), rename_exchange) == 0:
+        return True
+    if ctypes.get_errno() in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(second))
+
+
+def _move_into_place(staging: Path, target: Path, folder: bool) -> None:
+    """Replace ``target`` by the finished result in ``staging`` (the folder itself, or the one file in it)."""
+    if not folder:
+        os.replace(staging / target.name, target)
+        shutil.rmtree(staging)
+        return
+    if os.path.isdir(target) and any(os.scandir(target)):
+        if not _exchange(staging, target):
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+            os.replace(target, old)
+            os.replace(staging, target)
+            staging = old
+        shutil.rmtree(staging)
+    else:
+        os.replace(staging, target)
+
+
+@contextlib.contextmanager
+def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
+            inputs: Iterable[str | os.PathLike]) -> Iterator[OutputFolder]:
+    target = Path(target).absolute()
+    _check_target(target, folder, overwrite, inputs)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    handle = staging = None
+    with interrupts_raise():
+        try:
+            with _signals_held():
+                handle = _lock(target)
+                for leftover in _leftovers(target):
+                    shutil.rmtree(leftover, ignore_errors=True)
+                staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
+                os.chmod(staging, 0o777 & ~current_umask())
+            _check_target(target, folder, overwrite, ())
+            yield OutputFolder(staging, target)
+            check_interrupted()
+            with _signals_held():
+                _move_into_place(staging, target, folder)
+        finally:
+            with _signals_held():
+                if staging is not None:
+                    shutil.rmtree(staging, ignore_errors=True)
+                if handle is not None:
+                    _unlock(target, handle)
+
+
+def output_folder(target: str | os.PathLike, overwrite: bool = False,
+                  inputs: Iterable[str | os.PathLike] = ()) -> contextlib.AbstractContextManager[OutputFolder]:
+    """Write a run's folder: yields an :class:`OutputFolder` whose ``path`` (a temporary folder beside ``target``)
+    the block fills; when the block ends without error the folder becomes ``target``.
+
+    Args:
+        target: the output folder. overwrite: replace an existing non-empty folder whole (else refused).
+        inputs: files the run reads; a target containing one is refused.
+
+    Raises:
+        SeaiceError: naming ``target``: not a folder, not empty (without ``overwrite``), containing an input or the
+            working folder, or locked by another run.
+        Interrupted: on SIGINT or SIGTERM during the block (``target`` left as it was).
+    """
+    return _output(target, True, overwrite, inputs)
+
+
+def output_file(target: str | os.PathLike, overwrite: bool = False,
+                inputs: Iterable[str | os.PathLike] = ()) -> contextlib.AbstractContextManager[OutputFolder]:
+    """As :func:`output_folder`, for a single file: the block writes ``path / target.name``, which replaces
+    ``target`` when the block ends without error."""
+    return _output(target, False, overwrite, inputs)

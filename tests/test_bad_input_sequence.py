@@ -1,0 +1,107 @@
+"""Bad image-sequence projects, remapped stacks and film options: refused before any computation or writing, with an
+error naming the file, key, line or option (and the memory figure for grids and films over the budget)."""
+
+import re
+
+import numpy as np
+import pytest
+
+from seaice_jax.cli import main
+from seaice_jax.errors import SeaiceError
+from seaice_jax.io.sequence import MEMORY_BUDGET, read_sequence
+from seaice_jax.workflows.image_sequence import run_movie, run_remap, run_track, write_simulated_sequence
+
+HEAD = ('epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = [74.0, -85.0]\npixel_m = [2500.0, 2500.0]\n'
+        'shape = [10, 10]\n')
+IMAGE = '[[image]]\nname = "A"\ntime = "1983-03-08T01:00:00Z"\nfile = "a.npy"\ncontrol = "c.csv"\n'
+CONTROL = "id,pixel,scan,latitude,longitude,sigma_m\nP1,1,1,74,-85,500\nP2,8,8,73,-84,500\n"
+
+
+def _project(tmp_path, head=HEAD, image=IMAGE, control=CONTROL, pixels=None):
+    np.save(tmp_path / "a.npy", np.zeros((8, 8)) if pixels is None else pixels)
+    (tmp_path / "c.csv").write_text(control)
+    path = tmp_path / "sequence.toml"
+    path.write_text(head + image)
+    return path
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"head": HEAD.replace("pixel_m = [2500.0, 2500.0]", "pixel_m = [0.0, 2500.0]")},
+     r"sequence.toml: \[grid\] pixel_m must be > 0, got \[0.0, 2500.0\]"),
+    ({"head": HEAD.replace("centre_deg = [74.0, -85.0]", 'centre_deg = ["a", "b"]')},
+     r"sequence.toml: \[grid\] centre_deg must be two numbers, got \['a', 'b'\]"),
+    ({"head": HEAD.replace("centre_deg = [74.0, -85.0]", "centre_deg = [74.0, 400.0]")},
+     r"\[grid\] centre_deg \[74.0, 400.0\]: latitude .* longitude within \[-180°, 360°\)"),
+    ({"head": HEAD.replace("shape = [10, 10]", "shape = [30000, 30000]")},
+     r"\[grid\] shape \[30000, 30000\] needs 6.7 GiB per image, more than the 4 GiB budget"),
+    ({"head": HEAD.replace("shape = [10, 10]", "shape = [1000000, 1000000]")}, r"needs 7450.6 GiB per image"),
+    ({"head": HEAD.replace("shape = [10, 10]", "shape = [10000, 10000]"), "image": IMAGE * 6},
+     r"6 images on a 10000 x 10000 grid need 4.5 GiB, more than the 4 GiB budget"),
+    ({"head": HEAD.replace("shape = [10, 10]", "shape = [10.5, 10]")}, r"\[grid\] shape must be two positive integers"),
+    ({"image": IMAGE.replace('file = "a.npy"', "file = 5")},
+     r"image 'A': file must be a file name \(a string\), got 5"),
+    ({"image": IMAGE.replace('file = "a.npy"', 'file = "../a.npy"')},
+     r"image 'A': file = '../a.npy' is outside the project's folder"),
+    ({"pixels": np.where(np.eye(8) > 0, np.nan, 0.0)}, r"a.npy: 8 pixel values are not finite"),
+    ({"control": CONTROL.replace("P2,8,8,", "P2,8,9,")},
+     r"c.csv, line 3: point P2 at pixel 8.0, scan 9.0 is outside the image \(8 pixels x 8 scan lines"),
+    ({"control": CONTROL.replace("P2,", "P1,")}, r"c.csv, line 3: point P1 already defined on line 2"),
+    ({"control": CONTROL.replace("-84,", "400,")}, r"c.csv, line 3: point P2: .*longitude within \[-180°, 360°\)"),
+    ({"control": CONTROL.replace("73,", "nan,")}, r"c.csv, line 3: column 'latitude' value 'nan' is not finite"),
+])
+def test_bad_sequence_project_is_refused_naming_the_culprit(tmp_path, change, message):
+    with pytest.raises(SeaiceError, match=message):
+        read_sequence(_project(tmp_path, **change))
+
+
+def test_budget_figure_is_the_stack_size():
+    assert MEMORY_BUDGET == 4 * 2**30 and 6 * 10000 * 10000 * 8 / 2**30 == pytest.approx(4.47, abs=0.01)
+
+
+@pytest.fixture(scope="module")
+def remapped(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sequence")
+    project = write_simulated_sequence(root / "project", images=2, size=48)
+    run_remap(project, root / "remapped", progress=False)
+    return root / "remapped"
+
+
+def test_truncated_remapped_stack_is_named(remapped, tmp_path, capsys):
+    copy = tmp_path / "remapped"
+    copy.mkdir()
+    data = (remapped / "remapped.npz").read_bytes()
+    (copy / "remapped.npz").write_bytes(data[:len(data) // 2])
+    with pytest.raises(SeaiceError, match=r"remapped.npz: truncated or not a remapped stack"):
+        run_track(copy, tmp_path / "drift", progress=False)
+    assert not (tmp_path / "drift").exists()
+    assert main(["movie", str(copy), "--out", str(tmp_path / "film.gif")]) == 2
+    error = capsys.readouterr().err
+    assert "truncated or not a remapped stack" in error and "Traceback" not in error
+
+
+def test_a_film_over_the_budget_is_refused_with_its_size(remapped, tmp_path):
+    with pytest.raises(SeaiceError, match=r"--scale 200: 2 frames of 30000 x 30000 pixels need 5.0 GiB, more than "
+                                          r"the 4 GiB budget"):
+        run_movie(remapped, tmp_path / "film.gif", scale=200)
+    with pytest.raises(SeaiceError, match=r"fps must be > 0"):
+        run_movie(remapped, tmp_path / "film.gif", fps=0.0)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["movie", "R", "--out", "f.gif", "--fps", "0"], r"argument --fps: must be > 0.0, got 0"),
+    (["movie", "R", "--out", "f.gif", "--scale", "0"], r"argument --scale: must be >= 1, got 0"),
+    (["movie", "R", "--out", "f.gif", "--scale", "100000"], r"argument --scale: must be <= 64, got 100000"),
+    (["track", "R", "--out", "d", "--spacing", "0"], r"argument --spacing: must be >= 1, got 0"),
+    (["track", "R", "--out", "d", "--tracking-sigma", "-0.2"], r"argument --tracking-sigma: must be > 0.0"),
+    (["remap", "P", "--out", "d", "--fill", "1000000"], r"argument --fill: must be <= 1000, got 1000000"),
+    (["velocities", "F", "--out", "d", "--velocity-sigma", "-1"], r"argument --velocity-sigma: must be > 0.0"),
+    (["velocities", "F", "--out", "d", "--box-km", "0"], r"argument --box-km: must be > 0.0, got 0"),
+    (["block", "P", "--out", "d", "--knot-spacing", "0"], r"argument --knot-spacing: must be > 0.0, got 0"),
+    (["simulate", "lancaster", "--out", "d", "--size", "30000"], r"argument --size: must be <= 4096"),
+])
+def test_bad_options_are_usage_errors_naming_the_option(capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert re.search(message, capsys.readouterr().err)

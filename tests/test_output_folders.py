@@ -1,0 +1,258 @@
+"""One run, one output folder (seaice_jax.outputs): re-run, different run, interrupted run and concurrent runs leave
+either the old complete result or the new complete result, never a mix, and no temporary files."""
+
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.outputs import Interrupted, output_file, output_folder
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    """``{relative path: content}`` of every file under ``folder``."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _clean(parent: Path) -> None:
+    """No temporary folder, partial file or lock left beside the outputs."""
+    left = [p.name for p in parent.rglob("*") if p.name.startswith(".") or p.name.endswith((".part", ".partial"))]
+    assert left == []
+
+
+def _write(folder, files: dict[str, str]):
+    for name, text in files.items():
+        (folder.path / name).write_text(text)
+
+
+def test_new_folder_appears_only_when_complete(tmp_path):
+    target = tmp_path / "out"
+    with output_folder(target) as folder:
+        _write(folder, {"a.csv": "1\n"})
+        assert not target.exists()
+        assert folder.final([folder.path / "a.csv"]) == (target.absolute() / "a.csv",)
+    assert _tree(target) == {"a.csv": b"1\n"}
+    _clean(tmp_path)
+
+
+def test_existing_folder_refused_without_overwrite_and_replaced_whole_with_it(tmp_path):
+    target = tmp_path / "out"
+    with output_folder(target) as folder:
+        _write(folder, {"old_only.csv": "old\n", "shared.csv": "old\n"})
+    with pytest.raises(SeaiceError, match=r"out: the folder is not empty; pass --overwrite"):
+        with output_folder(target) as folder:
+            _write(folder, {"shared.csv": "new\n"})
+    assert _tree(target) == {"old_only.csv": b"old\n", "shared.csv": b"old\n"}
+    with output_folder(target, overwrite=True) as folder:
+        _write(folder, {"shared.csv": "new\n"})
+    assert _tree(target) == {"shared.csv": b"new\n"}  # a different run: nothing of the old one is left
+    _clean(tmp_path)
+
+
+def test_an_empty_existing_folder_is_used(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with output_folder(tmp_path / "empty") as folder:
+        _write(folder, {"a.csv": "1\n"})
+    assert _tree(tmp_path / "empty") == {"a.csv": b"1\n"}
+
+
+def test_failed_run_leaves_the_old_result(tmp_path):
+    target = tmp_path / "out"
+    with output_folder(target) as folder:
+        _write(folder, {"a.csv": "old\n"})
+    with pytest.raises(RuntimeError, match="half way"), output_folder(target, overwrite=True) as folder:
+        _write(folder, {"a.csv": "new\n", "b.csv": "new\n"})
+        raise RuntimeError("half way")
+    assert _tree(target) == {"a.csv": b"old\n"}
+    _clean(tmp_path)
+
+
+def test_folder_containing_an_input_or_a_file_in_the_way_is_refused(tmp_path):
+    project = tmp_path / "project"
+    project.mkdir()
+    (project / "project.toml").write_text("")
+    with pytest.raises(SeaiceError, match="contains the input"), output_folder(project, True,
+                                                                               inputs=[project / "project.toml"]):
+        pass
+    assert (project / "project.toml").exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(SeaiceError, match="file: exists and is not a folder"), output_folder(blocker):
+        pass
+    with pytest.raises(SeaiceError, match="project: is a folder"), output_file(project):
+        pass
+
+
+def test_output_file_policy(tmp_path):
+    target = tmp_path / "report.json"
+    with output_file(target) as staging:
+        (staging.path / target.name).write_text("old")
+    with pytest.raises(SeaiceError, match="report.json: the file exists; pass --overwrite"), output_file(target):
+        pass
+    with output_file(target, overwrite=True) as staging:
+        (staging.path / target.name).write_text("new")
+    assert target.read_text() == "new"
+    _clean(tmp_path)
+
+
+def test_second_run_into_a_locked_folder_is_refused_by_name(tmp_path):
+    target = tmp_path / "out"
+    with output_folder(target) as folder:
+        _write(folder, {"a.csv": "first\n"})
+        with pytest.raises(SeaiceError, match=r"out: another run is writing into it now"):
+            with output_folder(target, overwrite=True) as other:
+                _write(other, {"a.csv": "second\n"})
+    assert _tree(target) == {"a.csv": b"first\n"}
+    _clean(tmp_path)
+
+
+def test_leftovers_of_a_killed_run_are_removed_by_the_next(tmp_path):
+    leftover = tmp_path / ".out.abc123.partial"
+    leftover.mkdir()
+    (leftover / "a.csv").write_text("half")
+    with output_folder(tmp_path / "out") as folder:
+        _write(folder, {"a.csv": "1\n"})
+    _clean(tmp_path)
+
+
+_SLOW_WRITER = textwrap.dedent("""
+    import sys, time
+    from pathlib import Path
+    from seaice_jax.outputs import Interrupted, output_folder
+    try:
+        with output_folder(sys.argv[1], overwrite=True) as folder:
+            for k in range(3):
+                (folder.path / f"part{k}.csv").write_text("new\\n")
+            print("writing", flush=True)
+            time.sleep(60)
+            (folder.path / "last.csv").write_text("new\\n")
+    except Interrupted as interrupt:
+        print(interrupt, file=sys.stderr)
+        sys.exit(interrupt.exit_code)
+""")
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_while_writing_leaves_the_old_result_and_no_temporary_files(tmp_path, signum, code):
+    target = tmp_path / "out"
+    with output_folder(target) as folder:
+        _write(folder, {"old.csv": "old\n"})
+    process = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(target)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    assert process.stdout is not None and process.stdout.readline() == "writing\n"
+    assert any(p.name.endswith(".partial") for p in tmp_path.iterdir())  # it really is half way
+    process.send_signal(signum)
+    _, error = process.communicate(timeout=60)
+    assert process.returncode == code
+    assert signal.Signals(signum).name in error
+    assert _tree(target) == {"old.csv": b"old\n"}
+    _clean(tmp_path)
+
+
+def test_a_swallowed_ctrl_c_is_not_lost(tmp_path):
+    """A KeyboardInterrupt raised inside a finaliser (as in a garbage-collection callback) is printed and dropped by
+    Python; the run must still stop with 130 before its result is moved into place."""
+    script = textwrap.dedent("""
+        import os, signal, sys
+        from seaice_jax.outputs import Interrupted, output_folder
+
+        class Finaliser:
+            def __del__(self):
+                os.kill(os.getpid(), signal.SIGINT)
+                sum(range(1000))  # the handler runs here, inside __del__: its exception is swallowed
+
+        try:
+            with output_folder(sys.argv[1]) as folder:
+                (folder.path / "a.csv").write_text("1")
+                finaliser = Finaliser()
+                del finaliser
+                print("went on", flush=True)
+        except Interrupted as interrupt:
+            sys.exit(interrupt.exit_code)
+    """)
+    target = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-c", script, str(target)], capture_output=True, text=True, cwd=ROOT,
+                          timeout=60)
+    assert "went on" in done.stdout and "Exception ignored" in done.stderr  # the exception was swallowed...
+    assert done.returncode == 130  # ...and the interrupt still stopped the run
+    assert not target.exists()
+    _clean(tmp_path)
+
+
+def _seaice(*args, **kwargs):
+    return subprocess.Popen([sys.executable, "-m", "seaice_jax.cli", "--no-compile-cache", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, **kwargs)
+
+
+SMALL = ("simulate", "lancaster", "--images", "2", "--size", "48")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> dict[str, bytes]:
+    """The complete result of the small command, run alone."""
+    folder = tmp_path_factory.mktemp("reference") / "out"
+    process = _seaice(*SMALL, "--out", str(folder))
+    _, error = process.communicate(timeout=600)
+    assert process.returncode == 0, error
+    return _tree(folder)
+
+
+def test_cli_rerun_and_different_run(tmp_path, reference):
+    target = tmp_path / "out"
+    process = _seaice("simulate", "aidjex", "--strips", "3", "--features", "60", "--out", str(target))
+    assert process.communicate(timeout=600) and process.returncode == 0
+    aidjex = _tree(target)
+    again = _seaice(*SMALL, "--out", str(target))
+    _, error = again.communicate(timeout=600)
+    assert again.returncode == 2 and f"{target}: the folder is not empty; pass --overwrite" in error
+    assert _tree(target) == aidjex
+    different = _seaice(*SMALL, "--out", str(target), "--overwrite")
+    _, error = different.communicate(timeout=600)
+    assert different.returncode == 0, error
+    assert _tree(target) == reference  # no file of the AIDJEX run is left beside the new one
+    _clean(tmp_path)
+
+
+def _wait_for_staging(parent: Path, process, timeout: float = 600.0) -> bool:
+    """Poll until a temporary folder beside the output holds a file (the run is writing)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and process.poll() is None:
+        if any(any(p.iterdir()) for p in parent.iterdir() if p.name.endswith(".partial")):
+            return True
+        time.sleep(0.001)
+    return False
+
+
+def test_cli_terminated_while_writing(tmp_path, reference):
+    target = tmp_path / "out"
+    process = _seaice(*SMALL, "--out", str(target))
+    if _wait_for_staging(tmp_path, process):
+        process.send_signal(signal.SIGTERM)
+    _, error = process.communicate(timeout=600)
+    assert process.returncode in (0, 143), error  # 0 only if it finished before the signal landed
+    assert _tree(target) == reference if process.returncode == 0 else not target.exists()
+    if process.returncode == 143:
+        assert "interrupted by SIGTERM" in error
+    _clean(tmp_path)
+
+
+def test_cli_two_runs_at_once(tmp_path, reference):
+    target = tmp_path / "out"
+    processes = [_seaice(*SMALL, "--out", str(target), "--overwrite") for _ in range(2)]
+    results = [(p.communicate(timeout=600)[1], p.returncode) for p in processes]
+    for error, code in results:
+        assert code == 0 or (code == 2 and f"{target}: another run is writing into it now" in error), error
+    assert any(code == 0 for _, code in results)
+    assert _tree(target) == reference
+    _clean(tmp_path)
+
+
+def test_interrupted_is_a_keyboard_interrupt():
+    assert issubclass(Interrupted, KeyboardInterrupt) and Interrupted(signal.SIGINT).exit_code == 130

@@ -1,0 +1,212 @@
+"""The simultaneous adjustment of a sequence on the engine: the truth returned from noise-free observations,
+planted mismatched ties found and removed, and the joint covariance (across images) checked by Monte Carlo."""
+
+from dataclasses import dataclass, replace
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import xarray as xr
+
+from seaice_jax.adjust import engine, schur
+from seaice_jax.adjust.problem import Problem
+from seaice_jax.adjust.sequence_block import SequenceOptions, adjust_sequence, sequence_problem
+from seaice_jax.adjust.sequence_model import scan_unknowns, sequence_observations, with_scan_unknowns
+from seaice_jax.cli import main
+from seaice_jax.errors import SeaiceError
+from seaice_jax.io.sequence import read_sequence
+from seaice_jax.sensors.control import ControlPoints
+from seaice_jax.simulate.satellite import noaa_pass
+from seaice_jax.workflows.image_sequence import load_models, load_remapped, save_models
+
+SIZE = 256
+LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
+START_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
+"""σ of the starting models' unknowns (radians, pixel): 1-2 pixels of geolocation error."""
+POINTING = 0.3  # pixels, σ of a tie observation
+
+
+@dataclass(frozen=True)
+class Ties:
+    """The fields :func:`sequence_observations` reads from a tie table."""
+
+    image: np.ndarray
+    tie: np.ndarray
+    pixel: np.ndarray
+    scan: np.ndarray
+    sigma_pixel: np.ndarray
+    sigma_scan: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray
+
+
+def make_sequence(lattice=13):
+    """Three passes (south, north, south) ~40 km apart; ties on a ground lattice seen by two or three of them
+    (exact pixel and scan by the true models); six exact control points per image at σ 500 m."""
+    offsets = [(0.0, 0.0), (0.3, 0.8), (-0.25, -0.6)]
+    models = [noaa_pass(direction, SIZE, LATITUDE + np.radians(a), LONGITUDE + np.radians(b))
+              for direction, (a, b) in zip(("south", "north", "south"), offsets, strict=True)]
+    lat, lon = np.meshgrid(LATITUDE + np.radians(np.linspace(-1.8, 1.8, lattice)),
+                           LONGITUDE + np.radians(np.linspace(-6.0, 6.0, lattice)), indexing="ij")
+    lat, lon = lat.ravel(), lon.ravel()
+    rows = []
+    for i, model in enumerate(models):
+        pixel, scan = (np.asarray(a) for a in model.inverse(lat, lon))
+        inside = (pixel > 1) & (pixel < SIZE) & (scan > 1) & (scan < SIZE)
+        rows += [(i, t, pixel[t], scan[t]) for t in np.nonzero(inside)[0]]
+    table = np.array(rows)
+    counts = np.bincount(table[:, 1].astype(int), minlength=lat.size)
+    table = table[counts[table[:, 1].astype(int)] >= 2]
+    kept, tie = np.unique(table[:, 1].astype(int), return_inverse=True)
+    sigma = np.full(len(table), POINTING)
+    ties = Ties(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma, sigma, lat[kept], lon[kept])
+    rng = np.random.default_rng(7)
+    controls = []
+    for model in models:
+        pixel, scan = rng.uniform(10, SIZE - 10, (2, 6))
+        a, b = (np.asarray(v) for v in model.forward(pixel, scan))
+        controls.append(ControlPoints(pixel, scan, a, b, 500.0))
+    return models, ties, controls
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return make_sequence()
+
+
+def perturbed(models, rng, scale=1.0):
+    return [with_scan_unknowns(m, scan_unknowns(m) + rng.normal(0, scale * START_SIGMA)) for m in models]
+
+
+def true_theta(models):
+    return np.stack([np.asarray(scan_unknowns(m)) for m in models])
+
+
+def noisy(ties, rng, sigma=POINTING):
+    return replace(ties, pixel=ties.pixel + rng.normal(0, sigma, ties.pixel.size),
+                   scan=ties.scan + rng.normal(0, sigma, ties.scan.size))
+
+
+def test_noise_free_sequence_returns_the_true_models(truth, rng):
+    models, ties, controls = truth
+    result = adjust_sequence(perturbed(models, rng), ties, controls)
+    assert result.n_removed == 0 and result.rounds == 1
+    theta = true_theta(models)
+    assert np.all(np.abs(result.theta - theta) <= 1e-8 * np.maximum(np.abs(theta), 1.0)), result.theta - theta
+    np.testing.assert_allclose(result.tie_latitude, ties.latitude, atol=1e-10)
+    np.testing.assert_allclose(result.tie_longitude, ties.longitude, atol=1e-10)
+    p, s = np.meshgrid(np.linspace(1, SIZE, 5), np.linspace(1, SIZE, 5))
+    for model, fitted in zip(models, result.models, strict=True):
+        np.testing.assert_allclose(np.asarray(fitted.forward(p, s)), np.asarray(model.forward(p, s)), atol=1e-9)
+    assert result.covariance.shape == (15, 15)
+    assert result.sigma0 < 1e-5  # noise free
+    assert result.names[5] == "image1." + result.names[0].split(".")[1]
+
+
+def _plant(ties, rng, fraction=0.05):
+    """Shift one observation of ``fraction`` of the ties by 5-20 pixels in a random direction."""
+    count = max(1, round(fraction * ties.latitude.size))
+    chosen = rng.choice(ties.latitude.size, count, replace=False)
+    pixel, scan = ties.pixel.copy(), ties.scan.copy()
+    for t in chosen:
+        row = rng.choice(np.nonzero(ties.tie == t)[0])
+        length, angle = rng.uniform(5, 20), rng.uniform(0, 2 * np.pi)
+        pixel[row] += length * np.cos(angle)
+        scan[row] += length * np.sin(angle)
+    return replace(ties, pixel=pixel, scan=scan), set(int(t) for t in chosen)
+
+
+@pytest.mark.parametrize("robust", [None, "danish"])
+def test_planted_mismatches_are_all_removed(truth, rng, robust):
+    models, ties, controls = truth
+    clean = noisy(ties, rng)
+    bad, planted = _plant(clean, rng)
+    start = perturbed(models, rng)
+    reference = adjust_sequence(start, clean, controls)
+    result = adjust_sequence(start, bad, controls, options=SequenceOptions(robust=robust))
+    removed = set(result.removed_ties)
+    assert planted <= removed, planted - removed
+    # at α = 0.001 over ~1000 tie components a false removal or two is expected, not more
+    assert len(removed - planted) <= 0.02 * ties.latitude.size + 1, removed - planted
+    assert not [f for f in result.flagged() if f.group.startswith("ties")]
+    sigma = np.sqrt(np.diag(reference.covariance)).reshape(-1, 5)
+    assert np.all(np.abs(result.theta - reference.theta) <= sigma), (result.theta - reference.theta) / sigma
+    assert np.all(np.isnan(result.tie_latitude[sorted(removed)]))
+
+
+def test_joint_covariance_matches_monte_carlo(truth):
+    """300 noise draws of ties and control points, each adjusted (the compiled solve reused): the empirical
+    covariance of the estimates, whitened by the stated cofactor, is the identity — the blocks between images
+    included — and those cross-image correlations are large enough for the test to see them."""
+    models, ties, controls = truth
+    problem = sequence_problem(sequence_observations(models, ties, controls))
+    options = engine.EngineOptions(backend="schur")
+    cofactor = np.asarray(engine.solve(problem, options).cofactor)
+    correlation = cofactor / np.sqrt(np.outer(np.diag(cofactor), np.diag(cofactor)))
+    assert np.abs(correlation[:5, 5:]).max() > 0.3, "the images' errors should be correlated through the ties"
+    layout = schur.schur_layout(problem)
+    dof = engine.degrees_of_freedom(problem)
+    draws = 300
+    noise_rng = np.random.default_rng(5)
+    estimates = []
+    for _ in range(draws):
+        blocks = {}
+        for name, block in problem.blocks.items():
+            sigma = np.asarray(block.sigma)
+            noise = np.where(np.isfinite(sigma), noise_rng.normal(size=sigma.shape) * sigma, 0.0)  # not padding
+            data = dict(block.data)
+            if name.startswith("ties"):
+                data["pixel"], data["scan"] = data["pixel"] + noise[:, 0], data["scan"] + noise[:, 1]
+            else:  # control: the known position moved by (north, east) metres
+                radius = data["orbit"].radius
+                data["longitude"] = data["longitude"] + noise[:, 1] / (radius * jnp.cos(data["latitude"]))
+                data["latitude"] = data["latitude"] + noise[:, 0] / radius
+            blocks[name] = eqx.tree_at(lambda b: b.data, block, data)
+        solved = engine.solve(Problem(blocks, problem.start, problem.points), options, layout=layout, dof=dof)
+        estimates.append(np.asarray(solved.parameters["theta"]))
+    errors = np.array(estimates) - np.ravel(true_theta(models))
+    z = errors @ np.linalg.inv(np.linalg.cholesky(cofactor)).T
+    empirical = z.T @ z / draws
+    # each entry of a Wishart(I)/N has σ ≈ 1/√N (diagonal √2/√N)
+    assert np.abs(empirical - np.eye(15)).max() < 5.0 / np.sqrt(draws), np.round(empirical, 2)
+    # the cross-image block on its own, in correlation units
+    sample = np.cov(errors.T)
+    sample_correlation = sample / np.sqrt(np.outer(np.diag(sample), np.diag(sample)))
+    assert np.abs(sample_correlation[:5, 5:] - correlation[:5, 5:]).max() < 4.5 / np.sqrt(draws)
+
+
+def test_bad_options_are_named():
+    with pytest.raises(SeaiceError, match="batch"):
+        SequenceOptions(batch=0.0)
+    with pytest.raises(SeaiceError, match="robust"):
+        SequenceOptions(robust="tukey")
+
+
+def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):
+    """``seaice simulate lancaster`` writes the truth (land cells do not move, pack cells do); ``seaice adjust``
+    writes models whose covariance couples the images (per image: block diagonal); ``seaice remap --models`` adopts
+    them, and a models file of other images is refused naming the file."""
+    project = tmp_path / "seq" / "sequence.toml"
+    assert main(["--no-compile-cache", "simulate", "lancaster", "--out", str(project.parent), "--images", "2",
+                 "--size", "256"]) == 0
+    with xr.open_dataset(project.parent / "truth" / "drift_IMG01_IMG02.nc") as truth_drift:
+        dx = truth_drift["dX"].values[0]
+    land = np.load(project.parent / "land_mask.npy")
+    assert np.abs(dx[land]).max() < 1e-3 and np.abs(dx[~np.load(project.parent / "static_mask.npy")]).max() > 1000.0
+    for method in ("simultaneous", "per-image"):
+        assert main(["--no-compile-cache", "adjust", str(project), "--out", str(tmp_path / method), "--method",
+                     method, "--quiet"]) == 0
+    sequence = read_sequence(project)
+    _, joint, _ = load_models(tmp_path / "simultaneous" / "models.npz", sequence)
+    _, separate, _ = load_models(tmp_path / "per-image" / "models.npz", sequence)
+    assert np.abs(joint[:5, 5:]).max() > 0 and np.all(separate[:5, 5:] == 0)
+    correlation = joint / np.sqrt(np.outer(np.diag(joint), np.diag(joint)))
+    assert np.abs(correlation[:5, 5:]).max() > 0.1
+    assert main(["--no-compile-cache", "remap", str(project), "--models",
+                 str(tmp_path / "simultaneous" / "models.npz"), "--out", str(tmp_path / "remapped"), "--quiet"]) == 0
+    np.testing.assert_array_equal(load_remapped(tmp_path / "remapped").covariance, joint)
+    models, _, _ = load_models(tmp_path / "simultaneous" / "models.npz", sequence)
+    save_models(tmp_path / "other.npz", ["A", "B"], models, joint, 1.0, "simultaneous")
+    with pytest.raises(SeaiceError, match="other.npz: images"):
+        load_models(tmp_path / "other.npz", sequence)
