@@ -102,10 +102,12 @@ def main():
               "|---:|---:|---:|---:|---:|---:|---:|---|"]
     batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, fit_args)))
     lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, loop_count)
-    start = time.perf_counter()
-    for k in range(loop_count):
-        jax.block_until_ready(solve({"latitude": jnp.asarray(lats[k]), "longitude": jnp.asarray(lons[k])}))
-    loop_per_image = (time.perf_counter() - start) / loop_count
+    loop_per_image = float("inf")
+    for _ in range(3):  # best of three passes, as the batches are best of three
+        start = time.perf_counter()
+        for k in range(loop_count):
+            jax.block_until_ready(solve({"latitude": jnp.asarray(lats[k]), "longitude": jnp.asarray(lons[k])}))
+        loop_per_image = min(loop_per_image, (time.perf_counter() - start) / loop_count)
     for n in sizes:
         lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, n))
         compile_seconds = first_call_time(batch, lats, lons)
@@ -116,11 +118,11 @@ def main():
                      f"{loop_per_image * n / seconds:.1f}x | {compile_seconds:.2f} | {np.median(steps):.0f} / "
                      f"{steps.max()} | "
                      f"{bool(jnp.all(result.converged))} |")
-    lines += ["", f"The Python loop calls the warm jitted single-image solver {loop_count} times (same start for every "
-              "image, as in the batch). The engine's damped Gauss-Newton is one `lax.while_loop` (no separate "
-              "fallback branch), but under `vmap` that loop runs until the slowest image has converged: every image "
-              "pays the slowest one's iterations (median against slowest above), and each iteration pays the "
-              "batched LAPACK calls (QR and SVD, a few µs per image on this CPU).", ""]
+    lines += ["", f"The Python loop calls the warm jitted single-image solver {loop_count} times, best of three "
+              "passes (same start for every image, as in the batch). The engine's damped Gauss-Newton is one "
+              "`lax.while_loop` (no separate fallback branch), but under `vmap` that loop runs until the slowest "
+              "image has converged: every image pays the slowest one's iterations (median against slowest above), "
+              "and each iteration pays the batched LAPACK calls (QR and SVD, a few µs per image on this CPU).", ""]
     publish("Orbit fit (benchmarks/bench_orbit_fit.py)", lines, args.quick)
 
 

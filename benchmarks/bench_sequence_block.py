@@ -63,7 +63,7 @@ def synthetic_sequence(n_images: int, ties_per_image: int, rng):
             p, s = (np.asarray(a) for a in models[o].inverse(lat, lon))
             seen[o] = (p, s, (p > 1) & (p < SIZE) & (s > 1) & (s < SIZE))
         # a point belongs to the image that drew it and to later ones only (each ground point is one tie)
-        count = sum(v[2].astype(int) for o, v in seen.items() if o >= k)
+        count = np.sum([v[2] for o, v in seen.items() if o >= k], axis=0)
         for t in np.nonzero(count >= 2)[0]:
             tie = len(points)
             points.append((lat[t], lon[t]))

@@ -20,7 +20,7 @@ actually tracked (remap + NCC, as ``seaice track``) for the 12-point methods, an
 (``displacement_sigma`` with the pair's joint covariance and 0.2 pixel of tracking) against the empirical error.
 
 Writes experiments/results/sequence_block.md.
-Run: ``.venv/bin/python experiments/sequence_block.py [--realizations 10] [--images 4] [--track]``.
+Run: ``.venv/bin/python experiments/sequence_block.py [--realizations 10] [--images 4] [--size 512] [--track]``.
 """
 
 import argparse
@@ -46,7 +46,6 @@ from seaice_jax.workflows.image_sequence import displacement_sigma
 
 RESULTS = Path(__file__).with_name("results")
 POINTING = (0.5, 1.0)
-SIZE = 512
 PREDICTION_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
 """σ of the predicted models' unknowns (radians, pixel) for the 2-control-point case: about one pixel."""
 STATIC_MARGIN = 3000.0
@@ -64,20 +63,20 @@ def static_surface(scene):
     return lambda latitude, longitude: np.asarray(static(jnp.asarray(latitude), jnp.asarray(longitude)))
 
 
-def model_error(fitted, true, rng, count=400):
+def model_error(fitted, true, rng, size, count=400):
     """Ground distance (m) between the fitted and the true model's positions of random pixels."""
-    pixel, scan = rng.uniform(1, SIZE, count), rng.uniform(1, SIZE, count)
+    pixel, scan = rng.uniform(1, size, count), rng.uniform(1, size, count)
     lat_f, lon_f = (np.asarray(a) for a in fitted.forward(pixel, scan))
     lat_t, lon_t = (np.asarray(a) for a in true.forward(pixel, scan))
     return MEAN_RADIUS * np.hypot(lat_f - lat_t, np.asarray(wrap_angle(lon_f - lon_t)) * np.cos(lat_t))
 
 
-def apparent(scene, fitted, true, xy):
+def apparent(scene, fitted, true, xy, size):
     """Where a feature at scene positions ``xy (n, 2)`` appears when the image of ``true`` is mapped through
     ``fitted``; NaN outside the image."""
     lat, lon = scene.projection.inverse(xy[:, 0], xy[:, 1])
     pixel, scan = (np.asarray(a) for a in true.inverse(lat, lon))
-    inside = (pixel >= 1) & (pixel <= SIZE) & (scan >= 1) & (scan <= SIZE)
+    inside = (pixel >= 1) & (pixel <= size) & (scan >= 1) & (scan <= size)
     lat_f, lon_f = fitted.forward(pixel, scan)
     out = np.stack([np.asarray(a) for a in scene.projection.forward(lat_f, lon_f)], 1)
     return np.where(inside[:, None], out, np.nan)
@@ -88,19 +87,19 @@ def first_controls(control: ControlPoints, count: int) -> ControlPoints:
                          control.longitude[:count], control.sigma[:count], control.ids[:count])
 
 
-def realization(seed, images, tracked):
+def realization(seed, images, tracked, size):
     rng = np.random.default_rng(20_000 + seed)
-    sequence = simulate_sequence(seed, n_images=images, size=SIZE, pointing_sigma=POINTING)
+    sequence = simulate_sequence(seed, n_images=images, size=size, pointing_sigma=POINTING)
     scene = sequence.scene
     truth = [im.model for im in sequence.images]
     static = static_surface(scene)
     data = [im.data for im in sequence.images]
     lat0, lon0 = scene.projection.inverse(*scene.centre)
     grid = MapGrid.centred(scene.projection, lat0, lon0, 1200.0, 1200.0, 320, 320)
-    fits = [fit_scan_model(im.control, im.model.orbit, direction=im.model.direction, n_pixels=SIZE, n_scans=SIZE)
+    fits = [fit_scan_model(im.control, im.model.orbit, direction=im.model.direction, n_pixels=size, n_scans=size)
             for im in sequence.images]
     per_image = [f.model for f in fits]
-    blocks = [np.asarray(f.adjustment.covariance) for f in fits]
+    blocks = [np.asarray(f.adjustment.covariance) for f in fits if f.adjustment is not None]
     started = time.time()
     ties = find_ties(data, per_image, static, blocks)
     tie_time = time.time() - started
@@ -118,13 +117,13 @@ def realization(seed, images, tracked):
     out = {"ties": [ties.n_ties, ties2.n_ties], "removed": [block12.n_removed, block2.n_removed],
            "tie_time": tie_time, "adjust_time": adjust_time}
     for label, (models, covariance) in methods.items():
-        errors = [model_error(m, t, rng) for m, t in zip(models, truth, strict=True)]
+        errors = [model_error(m, t, rng, size) for m, t in zip(models, truth, strict=True)]
         drift, predicted_sigma = [], []
         for k in range(images - 1):
             a, b = sequence.images[k], sequence.images[k + 1]
             end = pack + true_displacement(scene, pack, a.time, b.time)
-            error = ((apparent(scene, models[k + 1], truth[k + 1], end) - end)
-                     - (apparent(scene, models[k], truth[k], pack) - pack))
+            error = ((apparent(scene, models[k + 1], truth[k + 1], end, size) - end)
+                     - (apparent(scene, models[k], truth[k], pack, size) - pack))
             keep = np.all(np.isfinite(error), axis=1)
             drift.append(error[keep])
             pair = covariance[5 * k:5 * k + 10, 5 * k:5 * k + 10]
@@ -159,20 +158,22 @@ def rms(values):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--realizations", type=int, default=10)
     parser.add_argument("--images", type=int, default=4, help="images per simulated sequence")
+    parser.add_argument("--size", type=int, default=512, help="pixels and scan lines per image")
     parser.add_argument("--track", action="store_true", help="also remap and track (12-point methods)")
     args = parser.parse_args()
     started = time.time()
     runs = []
     for seed in range(args.realizations):
-        runs.append(realization(seed, args.images, args.track))
+        runs.append(realization(seed, args.images, args.track, args.size))
         print(f"realization {seed + 1}/{args.realizations} ({time.time() - started:.0f} s)", flush=True)
     labels = [k for k in runs[0] if isinstance(runs[0][k], dict)]
     lines = ["# Simultaneous adjustment of image sequences against the per-image fit", "",
-             f"Generated by `experiments/sequence_block.py` ({args.realizations} simulated Lancaster-like sequences of "
-             f"{args.images} NOAA-7-like {SIZE} x {SIZE} images; {time.time() - started:.0f} s). Ties per sequence "
+             f"Generated by `experiments/sequence_block.py` ({args.realizations} simulated Lancaster-like sequences "
+             f"of {args.images} NOAA-7-like {args.size} x {args.size} images; {time.time() - started:.0f} s). Ties "
+             "per sequence "
              f"(12 / 2 control points): median {np.median([r['ties'][0] for r in runs]):.0f} / "
              f"{np.median([r['ties'][1] for r in runs]):.0f}; ties removed as mismatches: "
              f"{sum(r['removed'][0] for r in runs)} / {sum(r['removed'][1] for r in runs)} in all; tie finding "

@@ -25,8 +25,12 @@ else:
 
 if TYPE_CHECKING:
     from seaice_jax.adjust.block import BlockOptions, simultaneous_block
+    from seaice_jax.adjust.engine import Adjustment, EngineOptions, solve
     from seaice_jax.adjust.lsq import Observations, least_squares
     from seaice_jax.adjust.orbit_fit import fit_scan_model
+    from seaice_jax.adjust.problem import Problem, ResidualBlock
+    from seaice_jax.adjust.sequence_block import adjust_sequence
+    from seaice_jax.adjust.variance import robust_adjustment, variance_components
     from seaice_jax.geometry.earth import (
         EARTH_ROTATION_RATE,
         MEAN_RADIUS,
@@ -66,6 +70,7 @@ if TYPE_CHECKING:
     from seaice_jax.geometry.scan import SATELLITES, SCAN_UNKNOWNS, Orbit, SatelliteOrbit, ScanModel, satellite_orbit
     from seaice_jax.geometry.trajectory import CircularTrajectory, Trajectory
     from seaice_jax.imagery.remap import remap
+    from seaice_jax.imagery.ties import find_ties
     from seaice_jax.imagery.tracking import TrackingOptions, track
     from seaice_jax.sensors.control import ControlPoints, ImageObservations
     from seaice_jax.sensors.navigation import NavigationSpline
@@ -75,8 +80,12 @@ __version__ = "0.1.0"
 
 _SOURCES = {
     "seaice_jax.adjust.block": ("BlockOptions", "simultaneous_block"),
+    "seaice_jax.adjust.engine": ("Adjustment", "EngineOptions", "solve"),
     "seaice_jax.adjust.lsq": ("Observations", "least_squares"),
     "seaice_jax.adjust.orbit_fit": ("fit_scan_model",),
+    "seaice_jax.adjust.problem": ("Problem", "ResidualBlock"),
+    "seaice_jax.adjust.sequence_block": ("adjust_sequence",),
+    "seaice_jax.adjust.variance": ("variance_components", "robust_adjustment"),
     "seaice_jax.geometry.earth": ("EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
                                   "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic",
                                   "geodetic_to_ecef", "great_circle_distance", "latitude_longitude", "north_east",
@@ -93,6 +102,7 @@ _SOURCES = {
     "seaice_jax.sensors.navigation": ("NavigationSpline",),
     "seaice_jax.simulate.satellite": ("simulate_sequence",),
     "seaice_jax.imagery.remap": ("remap",),
+    "seaice_jax.imagery.ties": ("find_ties",),
     "seaice_jax.imagery.tracking": ("track", "TrackingOptions"),
 }
 _LAZY = {name: module for module, names in _SOURCES.items() for name in names}
@@ -128,9 +138,11 @@ __all__ = [
     "SATELLITES", "SCAN_UNKNOWNS", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit",
     # observations and estimation
     "ControlPoints", "ImageObservations", "Observations", "least_squares", "fit_scan_model", "BlockOptions",
-    "simultaneous_block",
+    "simultaneous_block", "adjust_sequence",
+    # the adjustment engine
+    "Problem", "ResidualBlock", "solve", "EngineOptions", "Adjustment", "variance_components", "robust_adjustment",
     # rasters and drift
-    "remap", "track", "TrackingOptions",
+    "remap", "track", "TrackingOptions", "find_ties",
     # simulation
     "simulate_sequence",
 ]

@@ -78,7 +78,7 @@ def interrupts_raise() -> Iterator[None]:
         check_interrupted()
     finally:
         for s, handler in previous.items():
-            signal.signal(s, handler)
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
 
 
 @contextlib.contextmanager

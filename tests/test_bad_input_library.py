@@ -64,3 +64,16 @@ def test_maximum_latitude_beyond_the_pole_is_refused():
     with pytest.raises(SeaiceError, match=r"maximum latitude must be within \(0°, 90°\], got 95.0"):
         Orbit.from_max_latitude(np.radians(95.0), 6000.0)
     assert Orbit(np.radians(99.0), 6000.0, earth_day=np.inf).rotation_ratio == 0.0
+
+
+def test_least_squares_names_a_nan_observation_by_group_and_index():
+    from seaice_jax.adjust.lsq import Observations, least_squares
+
+    def line(parameters, x):
+        return {"y": parameters["slope"] * x}
+
+    x = np.arange(5.0)
+    good = least_squares(line, {"slope": 1.0}, {"y": Observations(2.0 * x, 0.1)}, args=x)
+    assert float(good.parameters["slope"]) == pytest.approx(2.0, abs=1e-9)
+    with pytest.raises(SeaiceError, match=r"observation group 'y'\[2\]: value nan is not finite"):
+        least_squares(line, {"slope": 1.0}, {"y": Observations(np.where(x == 2, np.nan, 2.0 * x), 0.1)}, args=x)

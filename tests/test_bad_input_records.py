@@ -34,3 +34,11 @@ def test_encodings_and_devices(tmp_path):
         read_records(path)
     with pytest.raises(SeaiceError, match=r": not a regular file"):
         read_records(tmp_path)
+
+
+def test_collinear_floes_are_named_not_a_traceback():
+    from seaice_jax.drift.kinematics import deformation
+
+    points = np.stack([np.arange(4.0) * 1000.0, np.arange(4.0) * 2000.0], axis=1)
+    with pytest.raises(SeaiceError, match=r"deformation: the 4 points lie on one line"):
+        deformation(points, np.ones((4, 2)), 0.01)

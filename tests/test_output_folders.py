@@ -8,7 +8,9 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+import xarray as xr
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.outputs import Interrupted, output_file, output_folder
@@ -16,9 +18,17 @@ from seaice_jax.outputs import Interrupted, output_file, output_folder
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _content(path: Path) -> bytes:
+    """A file's bytes; for NetCDF the values of its variables (the file also holds the time it was created)."""
+    if path.suffix != ".nc":
+        return path.read_bytes()
+    with xr.open_dataset(path) as data:
+        return b"".join(np.ascontiguousarray(data[k].values).tobytes() for k in sorted(map(str, data.variables)))
+
+
 def _tree(folder: Path) -> dict[str, bytes]:
     """``{relative path: content}`` of every file under ``folder``."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {str(p.relative_to(folder)): _content(p) for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def _clean(parent: Path) -> None:

@@ -403,7 +403,10 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
     tables = schur_layout(problem, cross)
     coverage = np.array([key[0] for key in layout.point_key])
     check_datum(problem, tables, layout.names, coverage, layout.start_points)
-    settings = engine.EngineOptions(solver, options.max_iterations, 0.0, options.tolerance, options.tolerance)
+    # the image whitening follows the estimate: square sums before and after a step differ in weights, so every
+    # Gauss-Newton step is taken (as the block adjustment always did)
+    settings = engine.EngineOptions(solver, options.max_iterations, 0.0, options.tolerance, options.tolerance,
+                                    monotone=False)
     solve_options = {"cross_points": cross, "layout": tables if solver == "schur" else None}
     names = tuple(layout.names)
     if options.variance_components:

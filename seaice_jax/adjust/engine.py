@@ -55,6 +55,9 @@ class EngineOptions:
         relative_tolerance, absolute_tolerance: converged when every |Δ| ≤ rtol·|x| + atol.
         decrease_tolerance: or when the step is smaller than this many a posteriori standard deviations
             (ΔᵀNΔ ≤ tol² σ̂0²).
+        monotone: accept a step only if it lowers the square sum (Levenberg-Marquardt); ``False`` takes every
+            Gauss-Newton step, for models whose weights follow the estimate (the radar block's image whitening),
+            where the square sums before and after a step are not comparable.
     """
 
     backend: str = "dense"
@@ -62,6 +65,7 @@ class EngineOptions:
     relative_tolerance: float = 1e-10
     absolute_tolerance: float = 1e-10
     decrease_tolerance: float = 1e-10
+    monotone: bool = True
 
 
 def choose_backend(problem: Problem) -> str:
@@ -223,7 +227,7 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
         step_theta, step_points, cost, gain, gauss_newton, scale = _linear_step(
             problem, layout, options.backend, theta, points, damping, scale)
         trial = square_sum(problem, theta + step_theta, points + step_points)
-        accept = jnp.isfinite(trial) & (trial < cost)
+        accept = jnp.isfinite(trial) & ((trial < cost) | (not options.monotone))
         tiny = small(step_theta, theta) & small(step_points, points)
         sigma0_squared = jnp.maximum(cost / jnp.maximum(dof, 1.0), 1e-300)
         # the Gauss-Newton step is below the tolerance in a posteriori σ, or the decrease it predicts is at the
@@ -273,10 +277,13 @@ def _statistics(problem: Problem, layout, backend: str, theta, points, cross_poi
             correlations[name] = correlation[start:start + size].reshape(block.sigma.shape)
             partners[name] = partner[start:start + size].reshape(block.sigma.shape)
             start += size
-        # also undetermined: an unknown run off towards infinity, where it hardly changes the residuals any more
-        # (the column-scaled rank cannot see it: scaling restores the column's size)
-        runaway = jnp.sqrt(jnp.diagonal(full)[:n]) > RUNAWAY * jnp.abs(theta)
-        undetermined = jnp.where(runaway & (theta != 0), 1.0, factors.undetermined()[:n])
+        # also undetermined: an unknown run off from a non-zero start towards infinity, where it hardly changes the
+        # residuals any more (the column-scaled rank cannot see it: scaling restores the column's size); a value
+        # near zero with an ordinary σ (an intercept of 1e-17 ± 0.1) has not run off
+        start = problem.start
+        runaway = ((jnp.sqrt(jnp.diagonal(full)[:n]) > RUNAWAY * jnp.abs(theta)) & (start != 0)
+                   & (jnp.abs(theta) > jnp.abs(start)))
+        undetermined = jnp.where(runaway, 1.0, factors.undetermined()[:n])
         return linear, full[:n, :n], point_cofactor, cross, hats, correlations, partners, undetermined
     q, couple = schur.cofactors(problem, linear, layout)
     hats = schur.hat_diagonals(problem, linear, layout, q)

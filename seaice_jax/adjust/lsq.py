@@ -30,6 +30,7 @@ from seaice_jax.adjust.dense import RANK_TOLERANCE
 from seaice_jax.adjust.engine import Adjustment, EngineOptions
 from seaice_jax.adjust.problem import Problem, ResidualBlock, linearize_all
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
+from seaice_jax.geometry._checks import is_traced
 
 __all__ = ["Adjustment", "Observations", "Solver", "checked_solve", "least_squares", "make_solver",
            "undetermined_parameters"]
@@ -273,7 +274,14 @@ def least_squares(model, parameters, observations, *, args=None, **options) -> A
     Raises:
         RankDeficiencyError: naming the parameters the observations cannot determine at the solution (or with
             fewer observations than unknowns), never a silent pseudo-inverse.
+        SeaiceError: naming the group and index of a non-finite observation.
     """
+    for group, given in ({} if is_traced(observations) else observations).items():
+        values = np.asarray(given.values).reshape(-1)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise SeaiceError(f"observation group {group!r}[{int(bad[0])}]: value {values[bad[0]]} is not finite "
+                              f"({bad.size} such)")
     solver = make_solver(model, parameters, observations, args=args, **options)
     observed = {g: observations[g].values for g in observations}
     return checked_solve(solver, observed, args)

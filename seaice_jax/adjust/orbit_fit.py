@@ -26,7 +26,7 @@ from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.earth import wrap_angle as _wrap
-from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, orbit_coordinates
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel, orbit_coordinates
 from seaice_jax.sensors.control import ControlPoints
 
 FREE_PARAMETERS = SCAN_UNKNOWNS
@@ -67,8 +67,9 @@ def orbit_solver(control: ControlPoints, start: ScanModel) -> Solver:
 
 
 def control_args(control: ControlPoints):
-    """The model arguments for :func:`orbit_solver` (image positions and the longitude unwrapping reference)."""
-    return control.pixel, control.scan, jnp.mean(control.longitude)
+    """The model arguments for :func:`orbit_solver`: image positions and each point's known longitude, next to which
+    its predicted longitude is unwrapped (so an image across ±180° fits as well as elsewhere)."""
+    return control.pixel, control.scan, control.longitude
 
 
 @jax.jit
@@ -91,7 +92,7 @@ def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight
     return jax.vmap(misfit)(nodes)
 
 
-def initial_guess(control: ControlPoints, orbit: Orbit, direction: str, n_pixels: int = 512,
+def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_pixels: int = 512,
                   n_scans: int = 512, node_steps: int = 720) -> ScanModel:
     """Starting values from the control points alone (no operator input).
 

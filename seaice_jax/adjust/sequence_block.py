@@ -12,7 +12,8 @@ solve the tie observations failing the w-test at ``alpha`` are ranked by |w|; th
 (|w| at least ``batch`` times the largest: a mismatch among hundreds of good ties leaks little into the others'
 w) are removed, all of their observations at once (in a tie seen by two images the two w are nearly fully
 correlated: which image holds the wrong match cannot be told), and the adjustment is repeated until no tie
-observation is flagged. Removal sets σ to ∞ (the engine's padding), so every round reuses the compiled solve.
+observation is flagged. Removal sets σ to ∞ (the engine's padding), so every round reuses the compiled solve; the
+rows and tie points are padded to bucket sizes the same way, so sequences of similar size share it too.
 With ``robust`` the first solve is an iteratively reweighted one (:func:`~seaice_jax.adjust.variance.robust_adjustment`)
 and the ties it down-weights below ``robust_cut`` are removed before the snooping.
 """
@@ -83,7 +84,9 @@ class SequenceAdjustment(eqx.Module):
         sigma0: a posteriori σ̂0. degrees_of_freedom: of the final adjustment.
         tie_latitude, tie_longitude: ``(n_ties,)`` radians, adjusted tie positions (NaN for removed ties).
         removed_ties: ids of the ties removed as mismatches, in the order found. rounds: adjustments solved.
-        adjustment: the engine's final :class:`~seaice_jax.adjust.engine.Adjustment` (residuals, w-tests …).
+        adjustment: the engine's final :class:`~seaice_jax.adjust.engine.Adjustment` (residuals, w-tests …; its
+            groups' rows and points padded: the first ``observations.groups[g].rows`` rows and ``n_ties`` points
+            are real).
         observations: the :class:`SequenceObservations` adjusted (removed ties with σ = ∞).
         names: ``(5 n_images,)`` names of the unknowns (``"<image>.<unknown>"``).
         alpha: the w-tests' significance level.

@@ -367,7 +367,11 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     if triangles is None:
         from matplotlib.tri import Triangulation  # Delaunay; imported here so that the package loads without it
 
-        triangles = Triangulation(points[:, 0], points[:, 1]).triangles
+        try:
+            triangles = Triangulation(points[:, 0], points[:, 1]).triangles
+        except (RuntimeError, ValueError):
+            raise SeaiceError(f"deformation: the {points.shape[0]} points lie on one line (or coincide): no "
+                              "triangles") from None
     triangles = np.asarray(triangles)
     sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)

@@ -375,7 +375,8 @@ def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, lo
     time = np.asarray(time, float)
     features = [{"type": "Feature",
                  "geometry": {"type": "LineString", "coordinates": [_lon_lat(latitude, longitude, i) for i in k]},
-                 "properties": {"floe_id": str(f), "n_fixes": int(len(k)), "start_time": time_after(epoch, float(time[k[0]])),
+                 "properties": {"floe_id": str(f), "n_fixes": int(len(k)),
+                                "start_time": time_after(epoch, float(time[k[0]])),
                                 "end_time": time_after(epoch, float(time[k[-1]])),
                                 "times": [time_after(epoch, float(time[i])) for i in k]}}
                 for f, k in _floe_fixes(floe, time).items() if len(k) > 1]
