@@ -29,6 +29,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_geometry.py
 	$(PY) benchmarks/bench_orbit_fit.py
 	$(PY) benchmarks/bench_block.py
+	$(PY) benchmarks/bench_remap.py
+	$(PY) benchmarks/bench_nist.py
+	$(PY) benchmarks/bench_sequence_block.py
 	$(PY) benchmarks/bench_cli.py
 
 clean:

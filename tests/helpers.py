@@ -1,4 +1,6 @@
-"""Shared test tools: central finite differences as the independent check of autodiff Jacobians."""
+"""Shared test tools: central finite differences as the independent check of autodiff Jacobians; a tie table."""
+
+from dataclasses import dataclass
 
 import jax
 import numpy as np
@@ -33,3 +35,17 @@ def assert_jacobian_matches(function, x, rtol=1e-6, atol_scale=1e-9, **steps):
     atol = atol_scale * np.max(np.abs(numeric))
     np.testing.assert_allclose(forward, numeric, rtol=rtol, atol=atol)
     np.testing.assert_allclose(reverse, forward, rtol=1e-12, atol=1e-12 * np.max(np.abs(forward)))
+
+
+@dataclass(frozen=True)
+class Ties:
+    """The fields :func:`sequence_observations` reads from a tie table."""
+
+    image: np.ndarray
+    tie: np.ndarray
+    pixel: np.ndarray
+    scan: np.ndarray
+    sigma_pixel: np.ndarray
+    sigma_scan: np.ndarray
+    latitude: np.ndarray
+    longitude: np.ndarray

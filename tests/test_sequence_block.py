@@ -1,7 +1,7 @@
 """The simultaneous adjustment of a sequence on the engine: the truth returned from noise-free observations,
 planted mismatched ties found and removed, and the joint covariance (across images) checked by Monte Carlo."""
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -19,26 +19,13 @@ from seaice_jax.io.sequence import read_sequence
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
 from seaice_jax.workflows.image_sequence import load_models, load_remapped, save_models
+from tests.helpers import Ties
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
 START_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
 """σ of the starting models' unknowns (radians, pixel): 1-2 pixels of geolocation error."""
 POINTING = 0.3  # pixels, σ of a tie observation
-
-
-@dataclass(frozen=True)
-class Ties:
-    """The fields :func:`sequence_observations` reads from a tie table."""
-
-    image: np.ndarray
-    tie: np.ndarray
-    pixel: np.ndarray
-    scan: np.ndarray
-    sigma_pixel: np.ndarray
-    sigma_scan: np.ndarray
-    latitude: np.ndarray
-    longitude: np.ndarray
 
 
 def make_sequence(lattice=13):

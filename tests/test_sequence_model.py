@@ -1,7 +1,6 @@
 """The sequence block's observation model: residuals vanish at the truth, Jacobians match finite differences, the
 prior is whitened right, and a noise-free sequence adjusted through these residuals returns the true models."""
 
-from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -20,23 +19,10 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
+from tests.helpers import Ties
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
-
-
-@dataclass(frozen=True)
-class Ties:
-    """The fields :func:`sequence_observations` reads from a tie table."""
-
-    image: np.ndarray
-    tie: np.ndarray
-    pixel: np.ndarray
-    scan: np.ndarray
-    sigma_pixel: np.ndarray
-    sigma_scan: np.ndarray
-    latitude: np.ndarray
-    longitude: np.ndarray
 
 
 @pytest.fixture(scope="module")
