@@ -186,7 +186,7 @@ def _in_batches(function, realizations):
     runs = jax.tree_util.tree_leaves(realizations)[0].shape[0]
     parts = [solve(jax.tree_util.tree_map(lambda a, k=k: jnp.asarray(a[k:k + _BATCH]), realizations))
              for k in range(0, runs, _BATCH)]
-    return jax.tree_util.tree_map(lambda *pieces: jnp.concatenate(pieces), *parts)
+    return jax.tree_util.tree_map(lambda *pieces: np.concatenate([np.asarray(p) for p in pieces]), *parts)
 
 
 def monte_carlo_comparison(images, truths, runs, rng, pixel, scan) -> MonteCarloComparison:
