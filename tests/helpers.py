@@ -49,3 +49,20 @@ class Ties:
     sigma_scan: np.ndarray
     latitude: np.ndarray
     longitude: np.ndarray
+
+
+def lattice_ties(models, latitude, longitude, size, sigma_pixel, sigma_scan):
+    """Exact tie observations of ground points ``(n,)`` radians in every image of ``models`` (size x size) that
+    sees them, kept where two or more images do: a :class:`Ties` table with the given pointing σ (pixels)."""
+    rows = []
+    for i, model in enumerate(models):
+        pixel, scan = (np.asarray(a) for a in model.inverse(latitude, longitude))
+        inside = (pixel > 1) & (pixel < size) & (scan > 1) & (scan < size)
+        rows += [(i, t, pixel[t], scan[t]) for t in np.nonzero(inside)[0]]
+    table = np.array(rows)
+    counts = np.bincount(table[:, 1].astype(int), minlength=latitude.size)
+    table = table[counts[table[:, 1].astype(int)] >= 2]
+    kept, tie = np.unique(table[:, 1].astype(int), return_inverse=True)
+    ones = np.ones(len(table))
+    return Ties(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma_pixel * ones, sigma_scan * ones,
+                latitude[kept], longitude[kept])

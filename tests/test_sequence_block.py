@@ -19,7 +19,7 @@ from seaice_jax.io.sequence import read_sequence
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
 from seaice_jax.workflows.image_sequence import load_models, load_remapped, save_models
-from tests.helpers import Ties
+from tests.helpers import lattice_ties
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
@@ -37,17 +37,7 @@ def make_sequence(lattice=13):
     lat, lon = np.meshgrid(LATITUDE + np.radians(np.linspace(-1.8, 1.8, lattice)),
                            LONGITUDE + np.radians(np.linspace(-6.0, 6.0, lattice)), indexing="ij")
     lat, lon = lat.ravel(), lon.ravel()
-    rows = []
-    for i, model in enumerate(models):
-        pixel, scan = (np.asarray(a) for a in model.inverse(lat, lon))
-        inside = (pixel > 1) & (pixel < SIZE) & (scan > 1) & (scan < SIZE)
-        rows += [(i, t, pixel[t], scan[t]) for t in np.nonzero(inside)[0]]
-    table = np.array(rows)
-    counts = np.bincount(table[:, 1].astype(int), minlength=lat.size)
-    table = table[counts[table[:, 1].astype(int)] >= 2]
-    kept, tie = np.unique(table[:, 1].astype(int), return_inverse=True)
-    sigma = np.full(len(table), POINTING)
-    ties = Ties(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma, sigma, lat[kept], lon[kept])
+    ties = lattice_ties(models, lat, lon, SIZE, POINTING, POINTING)
     rng = np.random.default_rng(7)
     controls = []
     for model in models:

@@ -19,7 +19,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
-from tests.helpers import Ties
+from tests.helpers import Ties, lattice_ties
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
@@ -35,17 +35,7 @@ def truth():
     lat, lon = np.meshgrid(LATITUDE + np.radians(np.linspace(-1.5, 1.5, 7)),
                            LONGITUDE + np.radians(np.linspace(-5.0, 5.0, 7)), indexing="ij")
     lat, lon = lat.ravel(), lon.ravel()
-    rows = []
-    for i, model in enumerate(models):
-        pixel, scan = (np.asarray(a) for a in model.inverse(lat, lon))
-        inside = (pixel > 1) & (pixel < SIZE) & (scan > 1) & (scan < SIZE)
-        rows += [(i, t, pixel[t], scan[t]) for t in np.nonzero(inside)[0]]
-    table = np.array(rows)
-    counts = np.bincount(table[:, 1].astype(int), minlength=lat.size)
-    table = table[counts[table[:, 1].astype(int)] >= 2]
-    kept, tie = np.unique(table[:, 1].astype(int), return_inverse=True)
-    sigma = np.full(len(table), 0.3)
-    ties = Ties(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma, 1.5 * sigma, lat[kept], lon[kept])
+    ties = lattice_ties(models, lat, lon, SIZE, 0.3, 1.5 * 0.3)
     rng = np.random.default_rng(7)
     controls = []
     for model in models:
