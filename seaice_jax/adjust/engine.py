@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, PyTree
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import dense, schur
 from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, square_sum
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
@@ -58,6 +59,9 @@ class EngineOptions:
         monotone: accept a step only if it lowers the square sum (Levenberg-Marquardt); ``False`` takes every
             Gauss-Newton step, for models whose weights follow the estimate (the radar block's image whitening),
             where the square sums before and after a step are not comparable.
+        initial_damping: λ of the first step, relative to the column-scaled normal matrix (diagonal ≤ 1; Nielsen's
+            τ = 1e-3 by default): a far start (NIST's MGH17 start 1) then does not leap towards a limit at infinity
+            on its first step, while a good start hardly notices; 0 takes plain Gauss-Newton steps until one fails.
     """
 
     backend: str = "dense"
@@ -66,6 +70,7 @@ class EngineOptions:
     absolute_tolerance: float = 1e-10
     decrease_tolerance: float = 1e-10
     monotone: bool = True
+    initial_damping: float = 1e-3
 
 
 def choose_backend(problem: Problem) -> str:
@@ -248,7 +253,8 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
         return ~state[6] & (state[5] < options.max_steps)
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
-    start = (problem.start, problem.points, jnp.zeros(()), jnp.full((), 2.0), jnp.zeros(problem.unknowns),
+    start = (problem.start, problem.points, jnp.full((), options.initial_damping), jnp.full((), 2.0),
+             jnp.zeros(problem.unknowns),
              jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
     theta, points, _, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
     return theta, points, steps, converged
@@ -348,9 +354,12 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
     if layout is None:
         layout = schur.schur_layout(problem, cross_points) if options.backend == "schur" else None
     dof = degrees_of_freedom(problem) if dof is None else int(dof)
-    result = _solve(problem, layout, jnp.asarray(cross_points), options, jnp.asarray(dof, float))
+    # padded to a bucket, so problems differing only in the number of requested pairs share one compile
+    requested = pad(cross_points, bucket(cross_points.shape[0]), -1)
+    result = _solve(problem, layout, jnp.asarray(requested), options, jnp.asarray(dof, float))
     fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
-    return Adjustment(**(fields | {"parameter_names": tuple(names), "degrees_of_freedom": dof}))
+    return Adjustment(**(fields | {"parameter_names": tuple(names), "degrees_of_freedom": dof,
+                                   "point_pair_cofactor": result.point_pair_cofactor[:cross_points.shape[0]]}))
 
 
 def rescaled(problem: Problem, factors: dict, start: Adjustment | None = None) -> Problem:

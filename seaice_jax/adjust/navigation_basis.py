@@ -1,18 +1,8 @@
 """The navigation-error basis of a strip in the block adjustment (per strip, or shared by a flight)."""
 
-import functools
-
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.sensors.navigation import error_basis
-
-
-@functools.partial(jax.jit, static_argnames=("model", "duration", "knot_spacing"))
-def _error_basis(model, elapsed, duration, knot_spacing):
-    """:func:`error_basis` of times ``elapsed`` since the strip start (the bases are translation invariant)."""
-    return error_basis(model, elapsed, 0.0, duration, knot_spacing)
 
 
 def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spacing: float = 300.0):
@@ -33,7 +23,8 @@ def navigation_basis(model: str, times, strip_span, flight_span=None, knot_spaci
     times = np.asarray(times, float)
     span = strip_span if flight_span is None else flight_span
     at = np.concatenate([times - span[0], [0.0]])  # the last row: the span's start
-    values, rates = (np.asarray(a) for a in _error_basis(model, jnp.asarray(at), span[1] - span[0], knot_spacing))
+    # times since the span's start (the bases are translation invariant)
+    values, rates = (np.asarray(a) for a in error_basis(model, at, 0.0, span[1] - span[0], knot_spacing))
     if flight_span is None:
         return values[:-1], rates[:-1]
     values = values[:-1] - np.where(np.arange(values.shape[1]) == 1, values[-1], 0.0)  # column 1: the drift

@@ -35,7 +35,7 @@ class SchurLayout(eqx.Module):
         pair_weight: ``(r,)`` 1, or 0 for padding pairs.
         flat: ``(Mc,)`` flat observation index of each coupling row's component 0.
         cross_first, cross_second, cross_group: pairs of rows of two requested points p ≠ q (``cross_points``).
-        cross_points: ``(R, 2)`` the requested point pairs.
+        cross_points: ``(R, 2)`` the requested point pairs, padded to a bucket with ``(-1, -1)``.
     """
 
     blocks: tuple = eqx.field(static=True)
@@ -89,12 +89,14 @@ def schur_layout(problem: Problem, cross_points=None) -> SchurLayout:
              for o2 in rows_of.get(int(b), [])]
     cross = np.array(cross, int).reshape(-1, 3)
     cross_size = bucket(cross.shape[0])
+    # the requested pairs padded with (-1, -1) too (their blocks are computed and dropped by the engine's solve)
+    requested = pad(cross_points, bucket(cross_points.shape[0]), -1)
     return SchurLayout(tuple(names), k_max, c_max, jnp.asarray(pad(first, size, 0)), jnp.asarray(pad(second, size, 0)),
                        jnp.asarray(pad(np.ones(first.size), size, 0.0)),
                        jnp.asarray(np.concatenate(flats) if flats else np.zeros(0, int)),
                        jnp.asarray(pad(cross[:, 0], cross_size, 0)), jnp.asarray(pad(cross[:, 1], cross_size, 0)),
                        jnp.asarray(pad(np.ones(cross.shape[0]), cross_size, 0.0)),
-                       jnp.asarray(pad(cross[:, 2], cross_size, 0)), jnp.asarray(cross_points))
+                       jnp.asarray(pad(cross[:, 2], cross_size, 0)), jnp.asarray(requested))
 
 
 def _padded(array, axis, size):

@@ -9,12 +9,15 @@
   :class:`LinearError`, :class:`SchulerError` (84.4-min oscillation), :class:`SplineError` (cubic B-spline).
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from seaice_jax._shapes import bucket
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.trajectory import Trajectory
 
@@ -319,10 +322,20 @@ def error_basis(model: str, times, start: float, end: float, knot_spacing: float
     """
     q = error_basis_size(model, start, end, knot_spacing)
     times = jnp.asarray(times, float)
+    n = times.shape[0]
+    # padded to a bucket and the span traced: strips of one model and basis size share one compile
+    padded = jnp.pad(times, (0, bucket(n) - n), mode="edge")
+    basis, rates = _error_basis(model, q, padded, jnp.asarray(start, float), jnp.asarray(end, float),
+                                jnp.asarray(knot_spacing, float))
+    return basis[:n], rates[:n]
+
+
+@functools.partial(jax.jit, static_argnames=("model", "q"))
+def _error_basis(model, q, times, start, end, knot_spacing):
+    """:func:`error_basis` by autodiff of the model: the Jacobian in C, and its time derivative by a JVP."""
 
     def values(t):
         return jax.jacfwd(lambda c: _error_model(model, c, start, end, knot_spacing)(t)[..., 0])(jnp.zeros((q, 1)))[
             ..., 0]
 
-    basis, rates = jax.jvp(values, (times,), (jnp.ones_like(times),))
-    return basis, rates
+    return jax.jvp(values, (times,), (jnp.ones_like(times),))
