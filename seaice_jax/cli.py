@@ -1,14 +1,21 @@
-"""The ``seaice`` command. Thin: parses arguments, calls the library, prints, exits with a clear message."""
+"""The ``seaice`` command. Thin: parses arguments, calls the library, prints, exits with a clear message.
+
+Every command takes ``-q``/``--quiet`` (errors only: no progress bars, no report), ``-v``/``--verbose`` (also the
+elapsed time and, on an error, the traceback) and ``--overwrite``; ``--help`` shows each option's default. Exit
+codes (:mod:`seaice_jax.errors`): 0 done, 1 runtime failure, 2 usage or bad input, 130/143 interrupted.
+"""
 
 import argparse
 import math
 import os
 import sys
+import time
+import traceback
 from contextlib import nullcontext
 from pathlib import Path
 
 from seaice_jax import __version__
-from seaice_jax.errors import SeaiceError
+from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code
 from seaice_jax.outputs import Interrupted, interrupts_raise
 
 CACHE_VARIABLE = "SEAICE_JAX_CACHE_DIR"
@@ -37,13 +44,52 @@ def _in_range(kind, low, high, above: bool = False):
 
 
 _POSITIVE = _in_range(float, 0.0, None, above=True)
+QUIET, NORMAL, VERBOSE = 0, 1, 2
+"""Verbosity levels: ``-q`` (errors only), default (report and progress bars), ``-v`` (also timings, tracebacks)."""
+
+
+def _say(args, text: str) -> None:
+    """Print ``text`` (a report, the files written) unless ``-q``."""
+    if args.verbosity >= NORMAL:
+        print(text)
+
+
+def _progress(args) -> bool:
+    """Progress bars on stderr unless ``-q``."""
+    return args.verbosity >= NORMAL
+
+
+def _stages(args):
+    """A ``say`` for the workflows: each stage's message on stderr with the seconds since the command started,
+    unless ``-q``."""
+    start = time.perf_counter()
+
+    def say(message: str) -> None:
+        if args.verbosity >= NORMAL:
+            print(f"seaice {args.command} [{time.perf_counter() - start:4.0f} s]: {message}", file=sys.stderr,
+                  flush=True)
+
+    return say
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """``--help`` with each option's default appended (``(default: ...)``), except for flags (options without a
+    value), options without a default, and where the help already says it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (default is None or action.nargs == 0 or default is argparse.SUPPRESS or "default" in text
+                or not action.option_strings):
+            return text
+        return f"{text} (default: %(default)s)"
 
 
 def _demo(args) -> int:
     from seaice_jax.workflows.demo import run_demo
 
-    print(run_demo(args.out, overwrite=args.overwrite).summary)
-    return 0
+    _say(args, run_demo(args.out, overwrite=args.overwrite, say=_stages(args)).summary)
+    return EXIT_OK
 
 
 def _rectify(args) -> int:
@@ -75,31 +121,35 @@ def _rectify(args) -> int:
     with json_file as staging:
         fit = fit_scan_model(control, orbit, direction=args.direction, n_pixels=args.pixels, n_scans=args.scans,
                              method=args.method)
-        print(orbit_fit_report(fit, check, names={m.id: m.name for m in measurements}))
+        _say(args, orbit_fit_report(fit, check, names={m.id: m.name for m in measurements}))
         if staging is not None:
             write_json(staging.path / staging.target.name, orbit_fit_json(fit, check))
     if args.json:
-        print(f"wrote {args.json}")
-    return 0
+        _say(args, f"wrote {args.json}")
+    return EXIT_OK
 
 
 def _simulate(args) -> int:
-    from seaice_jax.io.project import write_project
-    from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
+    from seaice_jax.outputs import check_output
 
+    check_output(args.out, args.overwrite)  # before the simulation is even loaded
+    _stages(args)(f"simulating the {args.scenario} scenario (seed {args.seed})")
     if args.scenario == "lancaster":
         from seaice_jax.workflows.image_sequence import write_simulated_sequence
 
         path = write_simulated_sequence(args.out, args.seed, args.images, args.size, args.clouds,
                                         overwrite=args.overwrite)
-        print(f"wrote {path} (images, control points, land_mask.npy, static_mask.npy, truth/)")
-        return 0
+        _say(args, f"wrote {path} (images, control points, land_mask.npy, static_mask.npy, truth/)")
+        return EXIT_OK
+    from seaice_jax.io.project import write_project
+    from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
+
     if args.scenario == "aidjex":
         scenario = aidjex_scenario(args.seed, plan=FlightPlan(strips=args.strips), features=args.features)
     else:
         scenario = prudhoe_scenario(args.seed)
-    print(f"wrote {write_project(scenario, args.out, overwrite=args.overwrite)} (and truth.csv beside it)")
-    return 0
+    _say(args, f"wrote {write_project(scenario, args.out, overwrite=args.overwrite)} (and truth.csv beside it)")
+    return EXIT_OK
 
 
 def _block(args) -> int:
@@ -109,30 +159,30 @@ def _block(args) -> int:
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
                            knot_spacing=args.knot_spacing, radar_constants=args.radar_constants,
                            take_off_time=args.take_off_time)
-    run = run_block(args.project, args.out, args.method, options, overwrite=args.overwrite)
-    print(run.report)
-    print(f"wrote {len(run.files)} files into {args.out}")
-    return 0
+    run = run_block(args.project, args.out, args.method, options, overwrite=args.overwrite, say=_stages(args))
+    _say(args, run.report)
+    _say(args, f"wrote {len(run.files)} files into {args.out}")
+    return EXIT_OK
 
 
 def _adjust(args) -> int:
     from seaice_jax.workflows.sequence_adjust import run_adjust
 
-    step = run_adjust(args.project, args.out, method=args.method, static=args.static, progress=not args.quiet,
+    step = run_adjust(args.project, args.out, method=args.method, static=args.static, progress=_progress(args),
                       overwrite=args.overwrite)
-    print(step.report)
-    print(f"wrote {len(step.files)} files into {args.out}")
-    return 0
+    _say(args, step.report)
+    _say(args, f"wrote {len(step.files)} files into {args.out}")
+    return EXIT_OK
 
 
 def _remap(args) -> int:
     from seaice_jax.workflows.image_sequence import run_remap
 
-    step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=not args.quiet,
+    step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=_progress(args),
                      overwrite=args.overwrite, models_path=args.models)
-    print(step.report)
-    print(f"wrote {len(step.files)} files into {args.out}")
-    return 0
+    _say(args, step.report)
+    _say(args, f"wrote {len(step.files)} files into {args.out}")
+    return EXIT_OK
 
 
 def _track(args) -> int:
@@ -141,11 +191,15 @@ def _track(args) -> int:
 
     options = TrackingOptions(patch=args.patch, search=args.search, spacing=args.spacing,
                               min_correlation=args.min_correlation, first_guess=args.first_guess)
-    step = run_track(args.remapped, args.out, options, tracking_sigma=args.tracking_sigma, progress=not args.quiet,
-                     layout=args.layout, overwrite=args.overwrite)
-    print(step.report)
-    print(f"wrote {len(step.files)} files into {args.out}")
-    return 0
+    sources = args.remapped
+    geotiffs = len(sources) > 1 or Path(sources[0]).suffix.lower() in (".tif", ".tiff")
+    if not geotiffs and args.times:
+        raise SeaiceError("--times is for GeoTIFF files; a folder of `seaice remap` has its own times")
+    step = run_track(sources if geotiffs else sources[0], args.out, options, tracking_sigma=args.tracking_sigma,
+                     progress=_progress(args), layout=args.layout, overwrite=args.overwrite, times=args.times)
+    _say(args, step.report)
+    _say(args, f"wrote {len(step.files)} files into {args.out}")
+    return EXIT_OK
 
 
 def _velocities(args) -> int:
@@ -153,9 +207,9 @@ def _velocities(args) -> int:
 
     step = run_velocities(args.records, args.out, projection=args.projection, box_size=args.box_km * 1000.0,
                           velocity_sigma=args.velocity_sigma, overwrite=args.overwrite)
-    print(step.report)
-    print(f"wrote {len(step.files)} files into {args.out}")
-    return 0
+    _say(args, step.report)
+    _say(args, f"wrote {len(step.files)} files into {args.out}")
+    return EXIT_OK
 
 
 def _movie(args) -> int:
@@ -163,71 +217,104 @@ def _movie(args) -> int:
 
     step = run_movie(args.remapped, args.out, land_mask=args.land_mask, records=args.records, fps=args.fps,
                      scale=args.scale, overwrite=args.overwrite)
-    print(step.report)
-    return 0
+    _say(args, step.report)
+    return EXIT_OK
 
 
-def _sequence_commands(commands) -> None:
-    adjust = commands.add_parser("adjust", help="find the scan models of an image sequence: all images at once on "
-                                                "automatic tie points and the control points, or per image")
-    adjust.add_argument("project", help="sequence TOML")
+def _examples(args) -> int:
+    import shutil
+    from importlib.resources import as_file, files
+
+    from seaice_jax.outputs import output_folder
+
+    with as_file(files("seaice_jax") / "examples") as source, output_folder(args.folder, args.overwrite) as folder:
+        names = sorted(path.name for path in Path(source).iterdir() if path.is_file())
+        for name in names:
+            shutil.copyfile(Path(source) / name, folder.path / name)
+    _say(args, f"wrote {len(names)} example files into {args.folder}: {', '.join(names)}")
+    return EXIT_OK
+
+
+def _command(commands, common, name: str, summary: str, description: str | None = None):
+    """A sub-command with the shared options (``common``) and the defaults shown in its ``--help``."""
+    return commands.add_parser(name, help=summary, description=description or summary[0].upper() + summary[1:] + ".",
+                               parents=[common], formatter_class=_HelpFormatter)
+
+
+def _sequence_commands(commands, common) -> None:
+    adjust = _command(commands, common, "adjust", "find the scan models of an image sequence: all images at once on "
+                      "automatic tie points and the control points, or per image")
+    adjust.add_argument("project", help="sequence project (TOML: grid, images, times, control points)")
     adjust.add_argument("--out", required=True, help="output folder (models.npz with the joint covariance, "
                                                      "models.csv, ties.csv)")
     adjust.add_argument("--method", choices=["simultaneous", "per-image"], default="simultaneous",
-                        help="per-image: each image on its own control points (the 1985 practice)")
+                        help="simultaneous: one least-squares adjustment of every image's scan model on the tie "
+                             "points between images and the control points; per-image: each image on its own "
+                             "control points (the 1985 practice)")
     adjust.add_argument("--static", help=".npy bool array on the project's grid, True on land and fast ice (where "
                                          "ties are sought); default: static_mask.npy, else land_mask.npy beside the "
                                          "project")
-    adjust.add_argument("--quiet", action="store_true", help="no progress bars")
     adjust.set_defaults(run=_adjust)
 
-    remap = commands.add_parser("remap", help="rectify an image-sequence project and remap it into its map grid")
-    remap.add_argument("project", help="sequence TOML")
+    remap = _command(commands, common, "remap", "rectify an image-sequence project and remap it into its map grid")
+    remap.add_argument("project", help="sequence project (TOML)")
     remap.add_argument("--models", help="models.npz written by `seaice adjust`: adopt those scan models and their "
                                         "joint covariance instead of fitting each image")
     remap.add_argument("--out", required=True, help="output folder (GeoTIFFs, remapped.npz, rectification.csv)")
-    remap.add_argument("--method", choices=["bilinear", "nearest"], default="bilinear")
+    remap.add_argument("--method", choices=["bilinear", "nearest"], default="bilinear",
+                       help="how a map pixel takes its value from the image pixels around its source point")
     remap.add_argument("--fill", type=_in_range(int, 0, 1000), default=1,
-                       help="passes of the 1985 fill over missing pixels (0: none)")
-    remap.add_argument("--quiet", action="store_true", help="no progress bars")
+                       help="passes of the 1985 fill over missing pixels (each pass gives a missing pixel the mean "
+                            "of its valid neighbours; 0: none)")
     remap.set_defaults(run=_remap)
 
-    track = commands.add_parser("track", help="track the ice between consecutive remapped images")
-    track.add_argument("remapped", help="folder written by `seaice remap`")
+    track = _command(commands, common, "track", "track the ice between consecutive remapped images",
+                     "Track the ice between consecutive images of one map grid: the folder written by `seaice "
+                     "remap`, or two or more single-band GeoTIFFs of one grid made by any tool (any projected CRS, "
+                     "north-up; their times from --times or their TIFF DateTime tags).")
+    track.add_argument("remapped", nargs="+", help="folder written by `seaice remap`, or GeoTIFF files in time order")
+    track.add_argument("--times", nargs="+", help="ISO 8601 UTC time of each GeoTIFF (default: its DateTime tag)")
     track.add_argument("--out", required=True, help="output folder (CF-NetCDF drift, floes.csv, GeoJSON)")
-    track.add_argument("--patch", type=_in_range(int, 3, 1001), default=15, help="template side, pixels (odd)")
+    track.add_argument("--patch", type=_in_range(int, 3, 1001), default=15,
+                       help="side of the square template matched between the images, pixels (odd)")
     track.add_argument("--search", type=_in_range(int, 1, 1000), default=6,
                        help="largest displacement searched, pixels")
     track.add_argument("--spacing", type=_in_range(int, 1, 10_000), default=8, help="pixels between tracked points")
-    track.add_argument("--min-correlation", type=_in_range(float, -1.0, 1.0), default=0.6)
+    track.add_argument("--min-correlation", type=_in_range(float, -1.0, 1.0), default=0.6,
+                       help="smallest normalised cross-correlation of a match kept as a good vector")
     track.add_argument("--first-guess", choices=["zero", "features"], default="zero",
                        help="features: ORB matches and a RANSAC similarity transform predict the motion")
-    track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.2, help="σ of a tracked displacement, pixels")
+    track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.2,
+                       help="σ (standard deviation) of a tracked displacement, pixels")
     track.add_argument("--layout", choices=["project", "osisaf"], default="project",
-                       help="osisaf: also write each pair as drift_<a>_<b>_osisaf.nc in the OSI SAF low-resolution "
-                       "drift layout (dX, dY in km, uncert_dX_and_dY, dt0/dt1, OSI SAF status codes)")
-    track.add_argument("--quiet", action="store_true", help="no progress bars")
+                       help="osisaf: also write each pair as drift_<a>_<b>_osisaf.nc in the layout of the OSI SAF "
+                            "(EUMETSAT Ocean and Sea Ice Satellite Application Facility) low-resolution drift "
+                            "product (dX, dY in km, uncert_dX_and_dY, dt0/dt1, OSI SAF status codes)")
     track.set_defaults(run=_track)
 
-    speeds = commands.add_parser("velocities", help="velocities, box averages, time series, deformation and "
-                                                    "trajectories from floe records")
+    speeds = _command(commands, common, "velocities", "velocities, box averages, time series, deformation and "
+                      "trajectories from floe records")
     speeds.add_argument("records", help="floe record CSV (floe_id,time,image,pixel,scan,latitude,longitude)")
     speeds.add_argument("--out", required=True, help="output folder")
-    speeds.add_argument("--projection", choices=["nsidc-north", "nsidc-south"], default="nsidc-north",
-                        help="the grid whose axes the grid-relative components follow")
+    speeds.add_argument("--projection", default="nsidc-north",
+                        help="the grid whose axes the grid-relative components follow: nsidc-north or nsidc-south "
+                             "(NSIDC sea-ice polar stereographic, EPSG:3413 and EPSG:3976) or any projected CRS "
+                             "pyproj knows (EPSG:code, PROJ string)")
     speeds.add_argument("--box-km", type=_POSITIVE, default=50.0, help="side of the averaging boxes, km")
     speeds.add_argument("--velocity-sigma", type=_POSITIVE, default=None,
                         help="σ of each velocity component (m/s) for the deformation's σ (default: 1 km "
                              "position σ per fix)")
     speeds.set_defaults(run=_velocities)
 
-    movie = commands.add_parser("movie", help="time-lapse film (GIF or MP4) of a remapped sequence")
+    movie = _command(commands, common, "movie", "time-lapse film (GIF or MP4) of a remapped sequence")
     movie.add_argument("remapped", help="folder written by `seaice remap`")
     movie.add_argument("--out", required=True, help="film file, .gif or .mp4")
     movie.add_argument("--land-mask", help=".npy bool array on the grid: land drawn filled")
     movie.add_argument("--records", help="floe record CSV: the floes marked on every frame")
-    movie.add_argument("--fps", type=_in_range(float, 0.0, 1000.0, above=True), default=2.0)
-    movie.add_argument("--scale", type=_in_range(int, 1, 64), default=2, help="pixel replication")
+    movie.add_argument("--fps", type=_in_range(float, 0.0, 1000.0, above=True), default=2.0,
+                       help="frames per second")
+    movie.add_argument("--scale", type=_in_range(int, 1, 64), default=2,
+                       help="pixel replication (each map pixel drawn as scale x scale film pixels)")
     movie.set_defaults(run=_movie)
 
 
@@ -256,50 +343,96 @@ def _use_compile_cache(folder: Path | None) -> None:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
+    """``-q``/``--quiet`` and ``-v``/``--verbose`` (either before or after the command's name: the command's own
+    take ``argparse.SUPPRESS`` as default, so that they do not hide the ones given before it)."""
+    loudness = parser.add_mutually_exclusive_group()
+    loudness.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=QUIET, default=default,
+                          help="print errors only (no progress bars, no report)")
+    loudness.add_argument("-v", "--verbose", dest="verbosity", action="store_const", const=VERBOSE, default=default,
+                          help="also print the elapsed time and, on an error, its traceback")
+
+
+def _common_options() -> argparse.ArgumentParser:
+    """The options of every command: verbosity and ``--overwrite``."""
+    common = argparse.ArgumentParser(add_help=False)
+    _add_verbosity(common, argparse.SUPPRESS)
+    common.add_argument("--overwrite", action="store_true",
+                        help="replace an existing output folder (or file) whole; without it one that is not "
+                             "empty is refused")
+    return common
+
+
+_EPILOG = ("exit codes: 0 done; 1 runtime failure (an adjustment that did not converge, an output that could not be "
+           "written); 2 usage or bad input (an unknown option, a value out of range, a missing or malformed input "
+           "file); 130/143 interrupted by Ctrl-C/SIGTERM (nothing partial left). "
+           "`seaice COMMAND --help` describes each command.")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seaice", description="Sea-ice mapping and drift from radar strips and "
-                                     "satellite images (seaice_jax).")
+                                     "satellite images (seaice_jax).", epilog=_EPILOG, formatter_class=_HelpFormatter)
     parser.add_argument("--version", action="version", version=f"seaice_jax {__version__}")
+    _add_verbosity(parser, NORMAL)
     parser.add_argument("--no-compile-cache", dest="compile_cache", action="store_false",
                         help="do not keep JAX's compilations between runs (by default they are kept in "
                              f"${CACHE_VARIABLE}, else $XDG_CACHE_HOME/seaice_jax/jax or ~/.cache/seaice_jax/jax; "
                              f"an empty ${CACHE_VARIABLE} also turns the cache off)")
-    commands = parser.add_subparsers(dest="command", required=True)
-    demo = commands.add_parser("demo", help="run the main job on the built-in scenario")
-    demo.add_argument("--out", default="seaice-demo", help="output folder (default: ./seaice-demo)")
+    common = _common_options()
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    demo = _command(commands, common, "demo", "run the main job on the built-in scenario (a few minutes)",
+                    "Run every step on built-in data: geolocate a radar strip and the 1985 satellite image, fit its "
+                    "orbit, adjust a simulated radar block and track a simulated image sequence; write the files "
+                    "and figures into one folder.")
+    demo.add_argument("--out", default="seaice-demo", help="output folder")
     demo.set_defaults(run=_demo)
 
-    rectify = commands.add_parser(
-        "rectify", help="fit a satellite image's orbit and scan parameters to ground control points (VHR2)",
-        description="Fit the great-circle scan model (source 001, section 3.3) to control points and print a "
-                    "report in the layout of the 1985 line printer (Figure 3-3), with covariance and w-tests.")
+    examples = _command(commands, common, "examples", "copy the example files the README's commands use",
+                        "Copy the packaged example files (the control points and AGRID station catalogue of the "
+                        "1985 report's Figure 3-3) into FOLDER, so that the README's commands run from any folder.")
+    examples.add_argument("folder", nargs="?", default="examples", help="folder to create (default: ./examples)")
+    examples.set_defaults(run=_examples)
+
+    rectify = _command(
+        commands, common, "rectify", "fit a satellite image's orbit and scan parameters to ground control points",
+        "Fit the great-circle scan model of a whisk-broom satellite image (NOAA AVHRR, Landsat MSS; the model of the "
+        "1985 report, 'source 001', section 3.3, whose program VHR2 rectified Very High Resolution Radiometer "
+        "images) to control points of known latitude and longitude, and print a report in the layout of the 1985 "
+        "line printer (Figure 3-3) with the parameters' covariance and w-tests (Baarda's data snooping: a "
+        "standardised residual beyond its critical value flags a point).")
     rectify.add_argument("measurements", help="CSV: id,name,pixel,scan,lat,lon (degrees) [,sigma_km], or "
                                               "id,pixel,scan with --stations")
-    rectify.add_argument("--stations", help="AGRID station catalogue to take positions from")
+    rectify.add_argument("--stations", help="AGRID station catalogue (the 1985 fixed-column file of numbered "
+                                            "stations with latitude and longitude in degrees and minutes) to take "
+                                            "the positions from")
     rectify.add_argument("--satellite", required=True, help="NOAA-4, NOAA-5, NOAA-6, NOAA-7, TIROS-N, LANDSAT-1..3")
     rectify.add_argument("--altitude", type=_in_range(float, 0.0, 100_000.0),
-                         help="km; 0 for images corrected for Earth curvature "
-                                                        "(default: the satellite's)")
+                         help="km; 0 for images corrected for Earth curvature (default: the satellite's)")
     rectify.add_argument("--max-latitude", type=_in_range(float, 0.0, 90.0, above=True),
                          help="degrees (overrides the satellite table)")
     rectify.add_argument("--period", type=_POSITIVE, help="minutes (overrides the satellite table)")
     rectify.add_argument("--earth-day", type=_POSITIVE, help="minutes of one Earth rotation (default: sidereal day; "
                                                          "the 1985 program used 1440)")
-    rectify.add_argument("--direction", choices=["south", "north", "auto"], default="auto")
-    rectify.add_argument("--method", choices=["gauss-newton", "appendix_c"], default="gauss-newton")
+    rectify.add_argument("--direction", choices=["south", "north", "auto"], default="auto",
+                         help="the satellite's direction along its orbit; auto: fit both, keep the better")
+    rectify.add_argument("--method", choices=["gauss-newton", "appendix_c"], default="gauss-newton",
+                         help="appendix_c: the 1985 search of the report's Appendix C (no covariance)")
     rectify.add_argument("--sigma", type=_POSITIVE, default=1.0, help="km, ground σ of points without sigma_km")
-    rectify.add_argument("--pixels", type=_in_range(int, 2, 100_000), default=512,
-                         help="pixels per scan line (default 512)")
-    rectify.add_argument("--scans", type=_in_range(int, 2, 100_000), default=512, help="scan lines (default 512)")
+    rectify.add_argument("--pixels", type=_in_range(int, 2, 100_000), default=512, help="pixels per scan line")
+    rectify.add_argument("--scans", type=_in_range(int, 2, 100_000), default=512, help="scan lines")
     rectify.add_argument("--check", help="CSV of check points: known positions, not used in the fit")
-    rectify.add_argument("--json", help="also write the report as JSON here")
+    rectify.add_argument("--json", help="also write the report as JSON here, with what rebuilds the model and its "
+                                        "covariance (orbit, image size, unknowns, units)")
     rectify.set_defaults(run=_rectify)
 
-    simulate = commands.add_parser("simulate", help="write a simulated radar project (TOML + CSV) with its truth, "
-                                                    "or an image sequence (lancaster)")
+    simulate = _command(commands, common, "simulate", "write a simulated radar project (TOML + CSV) with its truth, "
+                        "or an image sequence (lancaster)",
+                        "Write a simulated project with its truth: aidjex (a radar block over drifting ice, after "
+                        "the 1975 AIDJEX experiment), prudhoe (a radar block near Prudhoe Bay with land control) or "
+                        "lancaster (a satellite image sequence of Lancaster Sound).")
     simulate.add_argument("scenario", choices=["aidjex", "prudhoe", "lancaster"])
     simulate.add_argument("--out", required=True, help="folder to write the project into")
-    simulate.add_argument("--seed", type=_in_range(int, 0, 2**32 - 1), default=0)
+    simulate.add_argument("--seed", type=_in_range(int, 0, 2**32 - 1), default=0, help="random seed")
     simulate.add_argument("--strips", type=_in_range(int, 1, 100), default=10, help="strips per coverage (aidjex)")
     simulate.add_argument("--features", type=_in_range(int, 1, 100_000), default=600, help="ice features (aidjex)")
     simulate.add_argument("--images", type=_in_range(int, 1, 1000), default=6,
@@ -309,13 +442,17 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--clouds", action="store_true", help="cloud patches on the images (lancaster)")
     simulate.set_defaults(run=_simulate)
 
-    block = commands.add_parser("block", help="adjust a radar block project and measure the drift")
+    block = _command(commands, common, "block", "adjust a radar block project and measure the drift",
+                     "Adjust a block of side-looking radar strips (a 'block': overlapping strips flown over "
+                     "drifting ice, tied by features seen on several strips) and measure the ice drift between "
+                     "coverages.")
     block.add_argument("project", help="project TOML")
     block.add_argument("--method", choices=["simultaneous", "sequential"], default="simultaneous",
-                       help="simultaneous: every unknown in one adjustment (default); sequential: the 1979 method of "
-                            "source 000")
+                       help="simultaneous: every unknown in one adjustment; sequential: the 1979 method of the "
+                            "AIDJEX report ('source 000'): strip by strip")
     block.add_argument("--navigation-model", choices=["constant", "linear", "schuler", "spline"], default="schuler",
-                       help="navigation-error model (simultaneous method)")
+                       help="navigation-error model of the simultaneous method (schuler: the 84-minute Schuler "
+                            "oscillation of an inertial navigation system's error)")
     block.add_argument("--navigation-scope", choices=["flight", "strip"], default="flight",
                        help="flight: one error curve per coverage, an offset per strip (the INS error runs on "
                             "through the turns); strip: every strip its own curve (needed by the spline model)")
@@ -324,29 +461,36 @@ def build_parser() -> argparse.ArgumentParser:
                        help="s on the strips' clock when the flights took off: the INS error curve then starts "
                             "there (drift from zero, offset = alignment error); default: from the first strip")
     block.add_argument("--radar-constants", choices=["strip", "shared"], default="strip",
-                       help="sweep delay and range scale per strip or one pair for the block")
+                       help="sweep delay and range scale (the radar's range calibration) per strip or one pair for "
+                            "the block")
     block.add_argument("--out", required=True, help="output folder")
     block.set_defaults(run=_block)
-    _sequence_commands(commands)
-    for command in commands.choices.values():
-        command.add_argument("--overwrite", action="store_true",
-                             help="replace an existing output folder (or file) whole; without it one that is not "
-                                  "empty is refused")
+    _sequence_commands(commands, common)
     return parser
 
 
 def main(argv=None) -> int:
+    """Run the ``seaice`` command; returns its exit code (:mod:`seaice_jax.errors`)."""
     args = build_parser().parse_args(argv)
     _use_compile_cache(compile_cache_folder(args.compile_cache))
+    start = time.perf_counter()
     try:
         with interrupts_raise():
-            return args.run(args)
-    except (SeaiceError, ValueError, OSError) as error:
-        print(f"seaice {args.command}: error: {error}", file=sys.stderr)
-        return 2
+            code = args.run(args)
     except Interrupted as interrupt:
         print(f"seaice {args.command}: {interrupt}; the output was left as it was before the run", file=sys.stderr)
         return interrupt.exit_code
+    except Exception as error:
+        code = exit_code(error)
+        if args.verbosity >= VERBOSE:
+            traceback.print_exc()
+        kind = "error" if isinstance(error, ValueError | OSError) else f"unexpected error ({type(error).__name__})"
+        hint = "" if args.verbosity >= VERBOSE or code != EXIT_FAILURE else " (-v shows the traceback)"
+        print(f"seaice {args.command}: {kind}: {error}{hint}", file=sys.stderr)
+        return code
+    if args.verbosity >= VERBOSE:
+        print(f"seaice {args.command}: done in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

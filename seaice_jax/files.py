@@ -36,8 +36,24 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             os.unlink(temporary)
 
 
+DEGREE_COLUMNS = ("lat", "lon", "latitude", "longitude")
+"""CSV columns in degrees. Every CSV the package writes names each number's unit in its column (``x_m``,
+``time_s``, ``speed_m_s``, ``divergence_per_s``, ``lat_deg``; pixel, scan line and count columns are their own unit,
+w-tests and redundancy numbers have none); the readers take these columns with or without ``_deg``
+(:func:`bare_column`), so that files written before the unit was added, and hand-made ones, still read."""
+
+
+def bare_column(name: str) -> str:
+    """The name a reader uses for CSV column ``name``: ``lat_deg`` -> ``lat`` for the :data:`DEGREE_COLUMNS`, any
+    other name as it is (stripped of blanks)."""
+    name = name.strip()
+    bare = name.removesuffix("_deg")
+    return bare if bare in DEGREE_COLUMNS else name
+
+
 def write_csv(path: str | os.PathLike, columns: Mapping[str, ArrayLike], float_format: str = "%.9g") -> Path:
-    """Write equal-length ``columns`` (name -> values) to a CSV with a header row, atomically.
+    """Write equal-length ``columns`` (name -> values) to a CSV with a header row, atomically (column names carry
+    their units: :data:`DEGREE_COLUMNS`).
 
     Raises:
         ValueError: naming the column whose length differs.

@@ -231,6 +231,18 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
                     _unlock(target, handle)
 
 
+def check_output(target: str | os.PathLike, overwrite: bool = False, inputs: Iterable[str | os.PathLike] = (),
+                 folder: bool = True) -> None:
+    """Refuse ``target`` now, before any computation, as :func:`output_folder` (``folder``) or :func:`output_file`
+    would when the result is ready to be written (they check again then).
+
+    Raises:
+        SeaiceError: naming ``target``: not of the right kind, not empty (without ``overwrite``), or containing an
+            input or the working folder.
+    """
+    _check_target(Path(target).absolute(), folder, overwrite, inputs)
+
+
 def output_folder(target: str | os.PathLike, overwrite: bool = False,
                   inputs: Iterable[str | os.PathLike] = ()) -> contextlib.AbstractContextManager[OutputFolder]:
     """Write a run's folder: yields an :class:`OutputFolder` whose ``path`` (a temporary folder beside ``target``)

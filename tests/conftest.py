@@ -1,5 +1,12 @@
 import os
 
+# One XLA CPU intra-op thread. jaxlib's batched LAPACK kernels (QR, SVD, ... under vmap) split the batch into tasks
+# on the intra-op pool and block until they are done; when every pool thread runs such a kernel at once (two on a
+# two-core machine: the executor runs independent kernels concurrently) no thread is left to run the tasks and the
+# process waits forever, idle. With one thread the kernels run their batch inline. Set before JAX makes its CPU
+# client; the `seaice` subprocesses of the tests inherit it.
+os.environ["NPROC"] = "1"
+
 import jax
 import numpy as np
 import pytest

@@ -74,8 +74,8 @@ CASES = [
      r"c1_measurements.csv, line 2: more values than the header's 5 columns"),
     ("c1_control.csv", lambda t: t + t.splitlines()[1] + "\n", r"c1_control.csv, line \d+: control point P0001 already "
                                                                r"defined on line 2"),
-    ("c1_control.csv", lambda t: _replace_cell(t, 2, "lon", "400"), r"c1_control.csv, line 2: point P0001: .*longitude "
-                                                                    r"within \[-180°, 360°\).* lon 400.0"),
+    ("c1_control.csv", lambda t: _replace_cell(t, 2, "lon_deg", "400"),
+     r"c1_control.csv, line 2: point P0001: .*longitude within \[-180°, 360°\).* lon 400.0"),
     ("c1_control.csv", lambda t: _replace_cell(t, 2, "sigma_m", "-100"), r"c1_control.csv, line 2: .*sigma_m -100.0"),
 ]
 

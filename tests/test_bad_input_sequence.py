@@ -32,6 +32,12 @@ def _project(tmp_path, head=HEAD, image=IMAGE, control=CONTROL, pixels=None):
      r"sequence.toml: \[grid\] centre_deg must be two numbers, got \['a', 'b'\]"),
     ({"head": HEAD.replace("centre_deg = [74.0, -85.0]", "centre_deg = [74.0, 400.0]")},
      r"\[grid\] centre_deg \[74.0, 400.0\]: latitude .* longitude within \[-180°, 360°\)"),
+    ({"head": HEAD.replace("centre_deg = [74.0, -85.0]", "centre_deg = [-74.0, -85.0]")},
+     r"sequence.toml: \[grid\] centre_deg latitude -74.0 lies outside the nsidc-north grid's hemisphere; use "
+     r"nsidc-south"),
+    ({"head": HEAD.replace("[grid]", '[grid]\nprojection = "equirectangular"').replace("[74.0, -85.0]", "[89.9, 0.0]")},
+     r"\[grid\] an equirectangular grid centred at latitude 89.9 with 12500 m north and south reaches latitude "
+     r"90.012°, beyond the pole"),
     ({"head": HEAD.replace("shape = [10, 10]", "shape = [30000, 30000]")},
      r"\[grid\] shape \[30000, 30000\] needs 6.7 GiB per image, more than the 4 GiB budget"),
     ({"head": HEAD.replace("shape = [10, 10]", "shape = [1000000, 1000000]")}, r"needs 7450.6 GiB per image"),

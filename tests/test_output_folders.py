@@ -266,3 +266,18 @@ def test_cli_two_runs_at_once(tmp_path, reference):
 
 def test_interrupted_is_a_keyboard_interrupt():
     assert issubclass(Interrupted, KeyboardInterrupt) and Interrupted(signal.SIGINT).exit_code == 130
+
+
+@pytest.mark.parametrize("scenario", ["aidjex", "prudhoe", "lancaster"])
+def test_simulate_refuses_an_existing_folder_before_loading_the_simulation(tmp_path, scenario):
+    """The policy is checked before minutes of simulation: the simulator's modules are not even imported."""
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "keep.txt").write_text("old\n")
+    script = (f"import sys; from seaice_jax.cli import main; code = main(['simulate', {scenario!r}, '--out', "
+              f"{str(target)!r}]); print(code, [m for m in sys.modules if m.startswith('seaice_jax.simulate')])")
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert run.stdout.split(None, 1) == ["2", "[]\n"], run.stderr
+    assert f"{target}: the folder is not empty; pass --overwrite" in run.stderr
+    assert _tree(target) == {"keep.txt": b"old\n"}
+    _clean(tmp_path)

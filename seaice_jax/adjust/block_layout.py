@@ -40,6 +40,7 @@ class BlockLayout:
     strip_of: np.ndarray
     point_of: np.ndarray
     q: int
+    start_theta: np.ndarray  # start values of the global unknowns: 0 but the sweep delays (see _sweep_delay_starts)
 
 
 @jax.jit
@@ -59,25 +60,46 @@ def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
 
 
 
-def _strip_observations(strip, x, y, options, plane, radius, flight_span):
-    """Per-observation geometry of one strip and the start map positions, with the navigation-error basis
-    (:func:`navigation_basis`)."""
+def _strip_observations(strip, x, y, options, plane, radius, flight_span, sweep_delay_start):
+    """Per-observation geometry of one strip and the start map positions (with the sweep delay
+    ``sweep_delay_start``, mm), with the navigation-error basis (:func:`navigation_basis`)."""
     navigation = strip_navigation(strip, options.filter_window)
     n = len(x)
     size = bucket(n)  # padded, so strips of similar size share one compilation
     geometry = _strip_geometry(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
                                jnp.asarray(pad(x, size, x[0])), jnp.asarray(pad(y, size, y[0])),
-                               strip.sweep_delay, strip.range_scale, look_sign(strip.look_side), plane, radius)
+                               sweep_delay_start, strip.range_scale, look_sign(strip.look_side), plane, radius)
     times, time_per_mm, position, velocity, north, east, north_rate, east_rate, start, jacobian = (
         np.asarray(a)[:n] for a in geometry)
     basis, rates = navigation_basis(options.navigation_model, times, (strip.start_time, strip.end_time), flight_span,
                                     options.knot_spacing)
-    # rows without a ground solution (range errors putting a near-range point inside the flying height) are dropped
+    # rows without a ground solution (a slant range shorter than the flying height) are refused by layout_block
     usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
     return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
                 north_rate=north_rate, east_rate=east_rate, y=np.asarray(y, float),
                 sweep_delay=np.full(n, strip.sweep_delay), range_scale=np.full(n, strip.range_scale),
                 sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
+
+
+def _sweep_delay_starts(coverages, strip_slices, size):
+    """Start values ``(size,)`` of the global unknowns: zero, except each sweep-delay correction Δc, which starts at
+    the value that fits the nadir returns of its strips with the nominal range scale (eq. A3 in image space:
+    Δc = mean(h_n / f0 − y_n − c0)); zero where its strips have no nadir returns.
+
+    From the nominal constants a sweep-delay error of a few tenths of a mm puts the near-range edge of every strip
+    inside the flying height (no ground point); started here, the block starts where the nadir returns put the
+    film's range origin, as the sequential method's nadir calibration does.
+    """
+    offsets = {}
+    for c, j, _, radar, _ in strip_slices:
+        strip = coverages[c].strips[j]
+        if strip.nadir_y.size:
+            offsets.setdefault(radar[0], []).append(nadir_altitudes(strip) / strip.range_scale - strip.nadir_y
+                                                    - strip.sweep_delay)
+    theta = np.zeros(size)
+    for index, values in offsets.items():
+        theta[index] = float(np.mean(np.concatenate(values)))
+    return theta
 
 
 def layout_block(coverages, n_points, plane, options, radius, point_ids=None) -> BlockLayout:
@@ -87,7 +109,8 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
     model = options.navigation_model
     coefficient_names = {"constant": ["offset"], "linear": ["offset", "rate"],
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
-    offset_sigma = options.offset_prior if options.offset_prior is not None else np.inf
+    offset = options.resolved_offset_prior()
+    offset_sigma = offset if offset is not None else np.inf
     shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
     schuler_sigma = options.schuler_prior if options.schuler_prior is not None else shape_sigma
     shape = {"constant": [], "linear": [shape_sigma], "schuler": [shape_sigma, schuler_sigma, schuler_sigma]}.get(
@@ -139,6 +162,7 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                           else np.inf]
                 shared_radar = radar
             strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
+    start_theta = _sweep_delay_starts(coverages, strip_slices, len(names))
     point_key, point_unknown, sums, counts = [], {}, [], []
     tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
                               "north_rate", "east_rate", "y",
@@ -163,7 +187,7 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
             if rows.size == 0:
                 continue
             table, start, valid = _strip_observations(strip, m.x[rows], m.y[rows], options, plane, radius,
-                                                      flight_span)
+                                                      flight_span, strip.sweep_delay + start_theta[radar[0]])
             unsolved.update((c, int(p), strip.name) for p in m.point[rows[~valid]])
             for key in table:
                 tables[key].append(table[key][valid])
@@ -182,15 +206,17 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                 coverage_of.append(c)
                 strip_of.append(j)
                 point_of.append(int(p))
+    if unsolved:
+        c, p, strip_name = min(unsolved)
+        name = p if point_ids is None else point_ids[p]
+        role = "control point" if p in coverages[c].control else "point"
+        more = f" (and {len(unsolved) - 1} more such measurements)" if len(unsolved) > 1 else ""
+        raise SeaiceError(f"coverage {coverages[c].name!r}: {role} {name} is measured (strip {strip_name}) but has no "
+                          "ground solution with the start radar constants (nominal, sweep delay fitted to the nadir "
+                          "returns) and the navigation: its slant range is shorter than the flying height, off the "
+                          f"film's ground range{more}; correct or remove its measurement")
     if not point_key:
         raise SeaiceError("no image measurement gives a ground point: nothing to adjust")
-    for c, p, strip_name in sorted(unsolved):
-        if p in coverages[c].control and (-1 if options.static_points else c, p) not in point_unknown:
-            name = p if point_ids is None else point_ids[p]
-            raise SeaiceError(f"coverage {coverages[c].name!r}: control point {name} is measured (strip {strip_name}) "
-                              "but has no ground solution with the nominal radar constants and the navigation (a "
-                              "slant range shorter than the flying height?): nothing would hold it; correct or "
-                              "remove its measurement")
     observations = {k: np.concatenate(v) for k, v in tables.items()}
     observations["point"] = observations["point"].astype(int)
     nadir = {k: np.concatenate(v) if v else np.zeros((0, 2) if k == "index" else 0) for k, v in nadir.items()}
@@ -206,6 +232,6 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                "sigma": np.array(control["sigma"], float)}
     return BlockLayout(names, np.array(prior, float), np.array(sums) / np.array(counts)[:, None], point_key,
                     strip_slices, observations, nadir, control, np.array(coverage_of), np.array(strip_of),
-                    np.array(point_of), q or 0)
+                    np.array(point_of), q or 0, start_theta)
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from seaice_jax.adjust.appendix_c import appendix_c_search
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
-from seaice_jax.errors import SeaiceError
+from seaice_jax.errors import ComputationError, RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.earth import wrap_angle as _wrap
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel, orbit_coordinates
@@ -208,7 +208,8 @@ def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "au
         control: at least three points (more to have redundancy and quality control).
         orbit: the satellite's orbit (inclination, period, altitude H — 0 for curvature-corrected images —
             and the Earth day T_e).
-        direction: ``"south"``, ``"north"`` or ``"auto"`` (fit both, keep the smaller RMS).
+        direction: ``"south"``, ``"north"`` or ``"auto"`` (fit both, keep the smaller RMS; a direction whose fit
+            fails — a start past the horizon, no convergence — is left out, and the error is raised only if both fail).
         method: ``"gauss-newton"`` or ``"appendix_c"``.
         search_options: for ``"appendix_c"``, the operator's entries (``start_subtrack``, ``search_span``,
             ``initial_spans``, ``f_gamma``, ``f_beta``; see :func:`~seaice_jax.adjust.appendix_c.appendix_c_search`).
@@ -220,17 +221,27 @@ def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "au
         raise SeaiceError(f"direction must be 'south', 'north' or 'auto', got {direction!r}")
     if method not in ("gauss-newton", "appendix_c"):
         raise SeaiceError(f"method must be 'gauss-newton' or 'appendix_c', got {method!r}")
+    if method == "appendix_c" and len(control) < 3:
+        # the search has no rank test: it would run its loops to their caps (10^8 evaluations) and report a fit
+        raise RankDeficiencyError(
+            f"{len(control)} control point(s) give {2 * len(control)} observations for the {len(FREE_PARAMETERS)} "
+            f"unknowns: the observations cannot determine {', '.join(FREE_PARAMETERS)} (at least 3 points needed)",
+            FREE_PARAMETERS)
     directions = ("south", "north") if direction == "auto" else (direction,)
     fits, failures = {}, {}
     for candidate in directions:
         try:
             fits[candidate] = _fit_one(control, orbit, candidate, n_pixels, n_scans, method, search_options or {})
-        except SeaiceError as error:
-            if direction != "auto" or type(error) is not SeaiceError:
+        except SeaiceError as error:  # auto: a direction that cannot start or converge leaves the other
+            if direction != "auto":
                 raise
             failures[candidate] = error
     if not fits:
-        raise SeaiceError("; ".join(f"{d}: {e}" for d, e in failures.items()))
+        errors = list(failures.values())
+        if all(isinstance(e, RankDeficiencyError) for e in errors):
+            raise errors[0]  # too few or badly placed points: the first names the undetermined unknowns
+        failed = ComputationError if all(type(e) is ComputationError for e in errors) else SeaiceError
+        raise failed("; ".join(f"{d}: {e}" for d, e in failures.items()))
     alternatives = {d: f.rms_km for d, f in fits.items()}
     best = min(fits.values(), key=lambda f: f.rms_km)
     return OrbitFit(best.model, best.control, best.method, best.iterations, best.adjustment, alternatives)
@@ -244,7 +255,8 @@ def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_option
     adjustment = least_squares(_predict, start, _observations(control, orbit.radius), args=control_args(control),
                                free=free_mask(start))
     if not bool(adjustment.converged):
-        raise SeaiceError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} steps")
+        raise ComputationError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} "
+                               "steps")
     return OrbitFit(adjustment.parameters, control, method, int(adjustment.steps), adjustment)
 
 

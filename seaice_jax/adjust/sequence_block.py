@@ -38,7 +38,7 @@ from seaice_jax.adjust.sequence_model import (
     unknown_names,
 )
 from seaice_jax.adjust.variance import ROBUST, robust_adjustment
-from seaice_jax.errors import SeaiceError
+from seaice_jax.errors import ComputationError, SeaiceError
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.sensors.control import ControlPoints
 
@@ -215,8 +215,8 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
         result = engine.solve(current, engine_options, names)
         rounds += 1
         if not bool(result.converged):
-            raise SeaiceError(f"the sequence adjustment did not converge in {options.max_steps} steps "
-                              f"(round {rounds}, {int(removed.sum())} ties removed)")
+            raise ComputationError(f"the sequence adjustment did not converge in {options.max_steps} steps "
+                                   f"(round {rounds}, {int(removed.sum())} ties removed)")
         worst = _worst_ties(current, result, options.alpha, options.batch)
         if not worst:
             break

@@ -1,7 +1,8 @@
 """Floe position records (source 001, the ICE module and its buffer files), in CSV.
 
-One record per floe per image: ``floe_id, time, image, pixel, scan, latitude, longitude`` (time ISO 8601 UTC,
-pixel and scan 1-based fractional image coordinates, latitude and longitude in degrees). Reading validates what
+One record per floe per image: ``floe_id, time, image, pixel, scan, latitude_deg, longitude_deg`` (time ISO 8601
+UTC, pixel and scan 1-based fractional image coordinates, latitude and longitude in degrees; ``latitude`` and
+``longitude`` without the unit are read too: :func:`~seaice_jax.files.bare_column`). Reading validates what
 the 1985 buffer check did, and names the file and line of the first record at fault:
 
 * every column present, numbers finite, latitude within ±90°, longitude within ±180°;
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.files import write_csv
+from seaice_jax.files import bare_column, write_csv
 from seaice_jax.timefmt import format_time, parse_time, seconds_since, time_after
 
 COLUMNS = ("floe_id", "time", "image", "pixel", "scan", "latitude", "longitude")
@@ -93,7 +94,8 @@ def read_records(path: str | os.PathLike, images=None, epoch: str | None = None)
     try:
         with open(path, newline="", encoding="utf-8-sig") as stream:
             reader = csv.DictReader(stream)
-            missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+            reader.fieldnames = [bare_column(c) for c in reader.fieldnames or []]
+            missing = [c for c in COLUMNS if c not in reader.fieldnames]
             if missing:
                 raise SeaiceError(f"{path}: missing column(s) {', '.join(missing)} (need {', '.join(COLUMNS)})")
             rows = list(reader)
@@ -130,5 +132,6 @@ def write_records(path: str | os.PathLike, records: FloeRecords) -> Path:
     times = [time_after(records.epoch, t) for t in records.time]
     return write_csv(path, {"floe_id": records.floe, "time": np.array(times), "image": records.image,
                             "pixel": records.pixel, "scan": records.scan,
-                            "latitude": np.degrees(records.latitude), "longitude": np.degrees(records.longitude)},
+                            "latitude_deg": np.degrees(records.latitude),
+                            "longitude_deg": np.degrees(records.longitude)},
                      float_format="%.10g")

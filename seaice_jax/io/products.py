@@ -32,6 +32,7 @@ _FALSE = ((3082, "x_0", 0.0), (3083, "y_0", 0.0))
 _TRANSFORMS = {
     "eqc": (17, ((3089, "lat_0", 0.0), (3088, "lon_0", 0.0), (3078, "lat_ts", 0.0), *_FALSE)),
     "ortho": (21, ((3089, "lat_0", 0.0), (3088, "lon_0", 0.0), *_FALSE)),
+    "laea": (10, ((3089, "lat_0", 0.0), (3088, "lon_0", 0.0), *_FALSE)),
     "stere": (15, ((3081, "lat_ts", 90.0), (3095, "lon_0", 0.0), (3092, "k_0", 1.0), *_FALSE)),
     "lcc": (8, ((3078, "lat_1", 0.0), (3079, "lat_2", 0.0), (3085, "lat_0", 0.0), (3084, "lon_0", 0.0),
                 (3086, "x_0", 0.0), (3087, "y_0", 0.0))),
@@ -41,10 +42,14 @@ _TRANSFORMS = {
 def _user_defined_keys(grid: MapGrid, path) -> tuple[list, list]:
     """GeoKeys ``(key, location, count, value)`` and GeoDoubleParams of a user-defined projected system: the
     ellipsoid (semi-axes) and the projection's coordinate transformation and parameters (degrees, metres)."""
+    import warnings
+
     import pyproj
 
     crs = pyproj.CRS.from_proj4(grid.projection.proj_string())
-    parameters = crs.to_dict()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "you will likely lose ... information": the PROJ form is wanted
+        parameters = crs.to_dict()
     if parameters.get("proj") not in _TRANSFORMS:
         raise SeaiceError(f"{path}: GeoTIFF georeferencing of {grid.projection.proj_string()!r} is not supported")
     transform, names = _TRANSFORMS[parameters["proj"]]
@@ -98,6 +103,61 @@ def write_geotiff(path: str | os.PathLike, image, grid: MapGrid, description: st
     return Path(path)
 
 
+def _tiff_time(text: str | None) -> str | None:
+    """The TIFF ``DateTime`` tag (``YYYY:MM:DD HH:MM:SS``) as ISO 8601 UTC, or None."""
+    if not text:
+        return None
+    date, _, clock = text.strip().partition(" ")
+    return f"{date.replace(':', '-')}T{clock or '00:00:00'}Z"
+
+
+def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, MapGrid, str | None]:
+    """A single-band GeoTIFF made by any tool (GDAL, rasterio, QGIS, ``seaice remap``), read with rasterio.
+
+    Returns:
+        ``(values, grid, time)``: ``(n_rows, n_columns)`` float64 (NaN where no data), the :class:`MapGrid` of its
+        CRS (:func:`~seaice_jax.geometry.crs.projection_from_definition`) and geotransform, and its TIFF
+        ``DateTime`` tag as ISO 8601 UTC (None without one).
+
+    Raises:
+        SeaiceError: naming the file, when it is missing, not a GeoTIFF, has no projected CRS in metres, or is
+            rotated or sheared (a north-up grid is needed).
+    """
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    from seaice_jax.geometry.crs import projection_from_definition
+
+    path = Path(path)
+    if not path.is_file():
+        raise SeaiceError(f"{path}: file not found")
+    try:
+        with rasterio.open(path) as source:
+            crs, transform, tags = source.crs, source.transform, source.tags()
+            values = source.read(1).astype(float)
+            nodata = source.nodata
+            bands = source.count
+    except RasterioIOError as error:
+        raise SeaiceError(f"{path}: not a readable GeoTIFF ({error})") from None
+    if bands != 1:
+        raise SeaiceError(f"{path}: {bands} bands; a single-band image is needed")
+    if crs is None:
+        raise SeaiceError(f"{path}: no coordinate reference system (GeoKeys)")
+    if transform.b != 0 or transform.d != 0 or transform.a <= 0 or transform.e >= 0:
+        raise SeaiceError(f"{path}: geotransform {tuple(transform)[:6]} is rotated, sheared or flipped; a north-up "
+                          "grid is needed")
+    code = crs.to_epsg()
+    try:
+        projection = projection_from_definition(f"EPSG:{code}" if code is not None else crs.to_wkt())
+    except SeaiceError as error:
+        raise SeaiceError(f"{path}: {error}") from None
+    if nodata is not None and np.isfinite(nodata):
+        values[values == nodata] = np.nan
+    grid = MapGrid(projection, transform.c + 0.5 * transform.a, transform.f + 0.5 * transform.e, transform.a,
+                   -transform.e, values.shape[0], values.shape[1])
+    return values, grid, _tiff_time(tags.get("TIFFTAG_DATETIME"))
+
+
 # --------------------------------------------------------------------------------------------- NetCDF
 
 CONVENTIONS = "CF-1.8, ACDD-1.3"
@@ -149,9 +209,28 @@ def _discovery_attrs(title: str, summary: str, epoch: str, start_time: float, en
             "product_version": version,
             "institution": "not stated (set by the producer)", "source": f"seaice_jax {version}, image tracking",
             "references": "https://cfconventions.org/; https://wiki.esipfed.org/Attribute_Convention_for_Data_Discovery_1-3",
-            "geospatial_lat_min": float(np.nanmin(lat)), "geospatial_lat_max": float(np.nanmax(lat)),
-            "geospatial_lon_min": float(np.nanmin(lon)), "geospatial_lon_max": float(np.nanmax(lon)),
-            "geospatial_lat_units": "degrees_north", "geospatial_lon_units": "degrees_east"}
+            **geographic_bounds(lat, lon), "geospatial_lat_units": "degrees_north",
+            "geospatial_lon_units": "degrees_east"}
+
+
+def geographic_bounds(lat, lon) -> dict:
+    """ACDD 1.3 ``geospatial_lat/lon_min/max`` (degrees) of points: the smallest longitude interval holding them
+    all, with ``geospatial_lon_min > geospatial_lon_max`` where it crosses ±180°; points around a pole (no gap of
+    180° or more between their longitudes: the pole lies within their convex hull on a polar map) take every
+    longitude and the pole's latitude."""
+    lat, lon = (np.asarray(a, float).ravel() for a in (lat, lon))
+    keep = np.isfinite(lat) & np.isfinite(lon)
+    lat, lon = lat[keep], np.sort((lon[keep] + 180.0) % 360.0 - 180.0)
+    gaps = np.diff(np.append(lon, lon[0] + 360.0))
+    k = int(np.argmax(gaps))
+    south, north = float(lat.min()), float(lat.max())
+    if gaps[k] < 180.0:
+        west, east = -180.0, 180.0
+        south, north = (south, 90.0) if np.mean(lat) > 0 else (-90.0, north)
+    else:
+        west, east = float(lon[(k + 1) % lon.size]), float(lon[k])
+    return {"geospatial_lat_min": south, "geospatial_lat_max": north, "geospatial_lon_min": west,
+            "geospatial_lon_max": east}
 
 
 def _grid_mapping(grid: MapGrid) -> dict:

@@ -10,7 +10,7 @@ surface = "ice"                      # or "land": points do not move between cov
 name = "day 0"
 epoch_s = 0.0
 measurements = "c1_measurements.csv"  # point,strip,kind,x_mm,y_mm   (comparator x', y')
-control = "c1_control.csv"            # point,lat,lon,sigma_m   (optional)
+control = "c1_control.csv"            # point,lat_deg,lon_deg,sigma_m   (optional; lat, lon also read)
 
 [[coverage.strip]]
 name = "S01"
@@ -305,7 +305,7 @@ def _write_project_files(scenario, out: Path) -> None:
     surface = "land" if np.all(np.asarray(scenario.kinds) == "land") else "ice"
     lines = ["[project]", f'name = "{scenario.name}"', f"map_centre_deg = [{centre[0]!r}, {centre[1]!r}]",
              f'surface = "{surface}"', ""]
-    truth_rows = {"point": [], "coverage": [], "kind": [], "lat": [], "lon": [], "x_m": [], "y_m": []}
+    truth_rows = {"point": [], "coverage": [], "kind": [], "lat_deg": [], "lon_deg": [], "x_m": [], "y_m": []}
     for c, (coverage, truth) in enumerate(zip(scenario.coverages, scenario.truth, strict=True), start=1):
         m = coverage.measurements
         frames = [ImageFrame.placed(np.radians(0.4 + 0.15 * j), (20.0 + j, 35.0 - 0.5 * j))
@@ -327,8 +327,8 @@ def _write_project_files(scenario, out: Path) -> None:
             lat, lon = scenario.plane.inverse(coverage.control[point][0], coverage.control[point][1])
             lat_c.append(float(np.degrees(lat)))
             lon_c.append(float(np.degrees(lon)))
-        write_csv(out / f"c{c}_control.csv", {"point": [ids[p] for p in coverage.control], "lat": lat_c,
-                                               "lon": lon_c, "sigma_m": [v[2] for v in coverage.control.values()]})
+        write_csv(out / f"c{c}_control.csv", {"point": [ids[p] for p in coverage.control], "lat_deg": lat_c,
+                                               "lon_deg": lon_c, "sigma_m": [v[2] for v in coverage.control.values()]})
         lines += ["[[coverage]]", f'name = "{coverage.name}"', f"epoch_s = {coverage.epoch!r}",
                   f'measurements = "c{c}_measurements.csv"', f'control = "c{c}_control.csv"', ""]
         for j, strip in enumerate(coverage.strips):
@@ -351,8 +351,8 @@ def _write_project_files(scenario, out: Path) -> None:
         truth_rows["point"] += ids
         truth_rows["coverage"] += [coverage.name] * len(ids)
         truth_rows["kind"] += list(scenario.kinds)
-        truth_rows["lat"] += list(np.degrees(np.asarray(lat)))
-        truth_rows["lon"] += list(np.degrees(np.asarray(lon)))
+        truth_rows["lat_deg"] += list(np.degrees(np.asarray(lat)))
+        truth_rows["lon_deg"] += list(np.degrees(np.asarray(lon)))
         truth_rows["x_m"] += list(truth.positions[:, 0])
         truth_rows["y_m"] += list(truth.positions[:, 1])
     write_csv(out / "truth.csv", truth_rows, float_format="%.12g")

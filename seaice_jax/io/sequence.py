@@ -5,7 +5,8 @@ map grid to remap into, with the image and control files beside it.
 epoch = "1983-03-08T00:00:00Z"        # time origin of the outputs (ISO 8601 UTC)
 
 [grid]
-projection = "nsidc-north"            # nsidc-north | nsidc-south | equirectangular (source 001's image grid)
+projection = "nsidc-north"            # nsidc-north | nsidc-south | equirectangular (source 001's image grid),
+                                      # or any projected CRS pyproj knows: "EPSG:3031", "+proj=laea ...", WKT
 centre_deg = [74.0, -85.0]            # latitude, longitude of the grid's centre
 pixel_m = [2500.0, 2500.0]            # width, height
 shape = [150, 150]                    # rows, columns
@@ -16,7 +17,7 @@ time = "1983-03-08T01:12:00Z"
 file = "IMG01.npy"                    # .npy, .tif/.tiff or .png: rows = scan lines, columns = pixels
 satellite = "NOAA-7"
 altitude_m = 0.0                      # 0: curvature-corrected image
-control = "IMG01_control.csv"         # id,pixel,scan,latitude,longitude,sigma_m: fit the scan model ...
+control = "IMG01_control.csv"         # id,pixel,scan,latitude_deg,longitude_deg,sigma_m: fit the scan model ...
 # ... or give it: direction, scanner_angle_span_deg, subtrack_pixel, orbital_angle_first_deg,
 #     orbital_angle_span_deg, ascending_node_deg
 ```
@@ -33,6 +34,8 @@ import numpy as np
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.geometry.crs import projection_from_definition
+from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, satellite_orbit
 from seaice_jax.io.tables import check_input_file, project_file, read_table
@@ -43,6 +46,8 @@ MODEL_KEYS = tuple(name if name == "subtrack_pixel" else f"{name}_deg" for name 
 """The keys of a given scan model: its unknowns (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`), angles in
 degrees."""
 PROJECTIONS = ("nsidc-north", "nsidc-south", "equirectangular")
+"""The named grid projections; any other ``projection`` is a CRS definition pyproj knows (``"EPSG:3031"``, a PROJ
+string, WKT: :func:`~seaice_jax.geometry.crs.projection_from_definition`)."""
 
 
 @dataclass(frozen=True)
@@ -73,17 +78,27 @@ class SequenceProject:
 
 
 def named_projection(projection: str, centre_deg):
-    """The metric projection of one of :data:`PROJECTIONS` (the equi-rectangular one true at ``centre_deg``)."""
-    if projection not in PROJECTIONS:
-        raise SeaiceError(f"grid projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
+    """The metric projection of one of :data:`PROJECTIONS` (the equi-rectangular one true at ``centre_deg``) or of
+    a CRS definition pyproj knows (``"EPSG:3031"``, a PROJ string, WKT)."""
     if projection == "equirectangular":
         return Equirectangular(np.radians(centre_deg[0]), np.radians(centre_deg[1]))
-    return nsidc_polar_stereographic(projection.split("-")[1])
+    if projection in PROJECTIONS:
+        return nsidc_polar_stereographic(projection.split("-")[1])
+    if not isinstance(projection, str):
+        raise SeaiceError(f"grid projection must be text, got {projection!r}")
+    try:
+        return projection_from_definition(projection)
+    except SeaiceError as error:
+        raise SeaiceError(f"grid projection must be one of {', '.join(PROJECTIONS)} or a projected CRS pyproj "
+                          f"knows (EPSG:code, PROJ string, WKT): {error}") from None
 
 
 def make_grid(projection: str, centre_deg, pixel_m, shape) -> MapGrid:
     """The :class:`MapGrid` of a project's ``[grid]`` table."""
     metric = named_projection(projection, centre_deg)
+    centre = metric.forward(np.radians(centre_deg[0]), np.radians(centre_deg[1]))
+    if not np.all(np.isfinite(np.asarray(centre, float))):
+        raise SeaiceError(f"centre_deg {list(centre_deg)!r} is outside the domain of projection {projection!r}")
     return MapGrid.centred(metric, np.radians(centre_deg[0]), np.radians(centre_deg[1]), float(pixel_m[0]),
                            float(pixel_m[1]), int(shape[0]), int(shape[1]))
 
@@ -180,6 +195,19 @@ def _read_image(entry: dict, k: int, path: Path, epoch: str, allow_outside: bool
     return SequenceImage(name, time, data, orbit, model, control, direction)
 
 
+def _check_hemisphere(path: Path, projection, latitude: float, half_height: float) -> None:
+    """A polar stereographic grid centred in its own hemisphere; an equi-rectangular grid (``half_height`` m north
+    and south of its centre) not reaching beyond a pole, where its rows would stand for latitudes over 90°."""
+    if (projection, latitude > 0) in (("nsidc-north", False), ("nsidc-south", True)):
+        raise SeaiceError(f"{path}: [grid] centre_deg latitude {latitude} lies outside the {projection} grid's "
+                          f"hemisphere; use nsidc-{'south' if projection == 'nsidc-north' else 'north'}")
+    reach = abs(latitude) + np.degrees(half_height / MEAN_RADIUS)
+    if projection == "equirectangular" and reach > 90:
+        raise SeaiceError(f"{path}: [grid] an equirectangular grid centred at latitude {latitude} with "
+                          f"{half_height:g} m north and south reaches latitude {reach:.3f}°, beyond the pole; use "
+                          "nsidc-north or nsidc-south there")
+
+
 def _checked_grid(path: Path, spec: dict) -> MapGrid:
     """The ``[grid]`` table as a :class:`MapGrid`: finite numbers, latitude within ±90°, longitude within
     [-180°, 360°), pixel sizes > 0, a shape of two positive integers within :data:`MEMORY_BUDGET`."""
@@ -196,10 +224,15 @@ def _checked_grid(path: Path, spec: dict) -> MapGrid:
         raise SeaiceError(f"{path}: [grid] pixel_m must be > 0, got {pixel_m!r}")
     if not all(isinstance(n, int) and n >= 1 for n in shape):
         raise SeaiceError(f"{path}: [grid] shape must be two positive integers (rows, columns), got {shape!r}")
+    projection = spec.get("projection", "nsidc-north")
+    _check_hemisphere(path, projection, latitude, pixel_m[1] * shape[0] / 2)
     if 8 * shape[0] * shape[1] > MEMORY_BUDGET:
         raise SeaiceError(f"{path}: [grid] shape {shape!r} needs {8 * shape[0] * shape[1] / 2**30:.1f} GiB per image, "
                           f"more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
-    return make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], pixel_m, shape)
+    try:
+        return make_grid(projection, spec["centre_deg"], pixel_m, shape)
+    except SeaiceError as error:
+        raise SeaiceError(f"{path}: [grid] {error}") from None
 
 
 def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> SequenceProject:
@@ -264,7 +297,7 @@ def write_sequence(sequence, out_dir: str | os.PathLike, grid_spec: dict, satell
         c = image.control
         write_csv(out / f"{image.name}_control.csv", {
             "id": np.array(c.ids), "pixel": np.asarray(c.pixel), "scan": np.asarray(c.scan),
-            "latitude": np.degrees(np.asarray(c.latitude)), "longitude": np.degrees(np.asarray(c.longitude)),
+            "latitude_deg": np.degrees(np.asarray(c.latitude)), "longitude_deg": np.degrees(np.asarray(c.longitude)),
             "sigma_m": np.asarray(c.sigma)}, float_format="%.10g")
         moment = time_after(sequence.epoch, image.time)
         lines += ["", "[[image]]", f'name = "{image.name}"', f'time = "{moment}"', f'file = "{image.name}.npy"',

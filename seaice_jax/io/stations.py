@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.files import atomic_path
+from seaice_jax.files import atomic_path, bare_column
 from seaice_jax.io.tables import check_input_file
 from seaice_jax.sensors.control import ControlPoints
 
@@ -137,7 +137,7 @@ def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None =
 def _read_measurements(path, by_number: dict, catalogue) -> list[Measurement]:
     with open(path, newline="", encoding="utf-8-sig") as stream:
         reader = csv.DictReader(stream)
-        columns = {c.strip() for c in reader.fieldnames or []}
+        columns = {bare_column(c) for c in reader.fieldnames or []}
         required = {"id", "pixel", "scan"} | (set() if catalogue else {"lat", "lon"})
         missing = sorted(required - columns)
         if missing:
@@ -145,7 +145,7 @@ def _read_measurements(path, by_number: dict, catalogue) -> list[Measurement]:
                               f"(have {', '.join(sorted(columns)) or 'none'})")
         measurements, seen = [], {}
         for line_number, raw in enumerate(reader, start=2):
-            row = {k.strip(): v for k, v in raw.items() if k is not None}
+            row = {bare_column(k): v for k, v in raw.items() if k is not None}
             where = f"{path}, line {line_number}"
             point = (row.get("id") or "").strip()
             if not point:

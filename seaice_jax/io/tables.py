@@ -5,6 +5,7 @@ import math
 from pathlib import Path
 
 from seaice_jax.errors import SeaiceError
+from seaice_jax.files import bare_column
 
 MAX_TABLE_BYTES = 512 * 2**20
 """Largest CSV file read (bytes): a bigger one (or a device such as ``/dev/zero``) is refused before reading."""
@@ -44,7 +45,8 @@ def check_input_file(path: Path, max_bytes: int = MAX_TABLE_BYTES) -> None:
 
 def read_table(path: Path, columns, numeric=None) -> list[tuple[int, dict]]:
     """The rows of a CSV (UTF-8, with or without a byte-order mark) as ``(line number, row dict)``, checking that
-    the header has ``columns`` and that the ``numeric`` columns are finite numbers (converted to float).
+    the header has ``columns`` and that the ``numeric`` columns are finite numbers (converted to float). A degree
+    column may carry its unit (``lat_deg`` for ``lat``: :func:`~seaice_jax.files.bare_column`).
 
     Raises:
         SeaiceError: naming the file and line (and column) at fault.
@@ -61,7 +63,7 @@ def read_table(path: Path, columns, numeric=None) -> list[tuple[int, dict]]:
 
 
 def _rows(path: Path, reader: csv.DictReader, columns, numeric) -> list[tuple[int, dict]]:
-    header = [c.strip() for c in reader.fieldnames or []]
+    header = [bare_column(c) for c in reader.fieldnames or []]
     missing = [c for c in columns if c not in header]
     if missing:
         raise SeaiceError(f"{path}, line 1: missing column(s) {', '.join(missing)}")
@@ -69,7 +71,7 @@ def _rows(path: Path, reader: csv.DictReader, columns, numeric) -> list[tuple[in
     for line, raw in enumerate(reader, start=2):
         if any(v.strip() for v in raw.get(None) or ()):
             raise SeaiceError(f"{path}, line {line}: more values than the header's {len(header)} columns")
-        row = {k.strip(): (v or "").strip() for k, v in raw.items() if k is not None}
+        row = {bare_column(k): (v or "").strip() for k, v in raw.items() if k is not None}
         for column in numeric or ():
             text = row[column]
             try:

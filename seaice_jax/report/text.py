@@ -2,9 +2,25 @@
 
 import numpy as np
 
+from seaice_jax import __version__
 from seaice_jax.adjust.orbit_fit import OrbitFit, check_point_errors
 from seaice_jax.adjust.quality import global_test
-from seaice_jax.geometry.scan import SCAN_UNKNOWNS
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel
+
+JSON_FORMAT = "seaice_jax rectify 1"
+"""The ``format`` of the ``seaice rectify --json`` document (:func:`orbit_fit_json`)."""
+
+JSON_UNITS = {
+    "model.unknowns": "the scan model's unknowns: angles in degrees (keys *_deg), subtrack_pixel in pixels (1-based)",
+    "model.orbit": "inclination_deg degrees, period_s and earth_day_s seconds, altitude_m and radius_m metres",
+    "model.covariance": "(5, 5) a posteriori covariance (sigma0^2 x cofactor) of model.unknowns in their order and "
+                        "units (deg^2, deg x pixel, pixel^2)",
+    "model.cofactor": "(5, 5) a priori covariance (J^T P J)^-1 of model.unknowns, same order and units",
+    "parameters": "the image-edge angles of the 1985 printout (degrees) and subtrack_pixel (pixels)",
+    "*_arcmin": "arc minutes, computed minus known", "*_km": "km on the ground",
+}
+"""What the numbers of the ``seaice rectify --json`` document are, and their units."""
 
 
 def _degrees_minutes(value_deg: float) -> str:
@@ -40,13 +56,78 @@ def _parameter_sigma(fit: OrbitFit) -> dict:
     return out
 
 
+def _json_key(unknown: str) -> str:
+    return unknown if unknown == "subtrack_pixel" else f"{unknown}_deg"
+
+
+def _json_scale() -> np.ndarray:
+    """``(5,)`` factors from the model's units of :data:`SCAN_UNKNOWNS` (radians, pixels) to the JSON's (degrees,
+    pixels)."""
+    return np.array([1.0 if unknown == "subtrack_pixel" else np.degrees(1.0) for unknown in SCAN_UNKNOWNS])
+
+
+def _model_json(fit: OrbitFit) -> dict:
+    """The scan model (unknowns, orbit, image size, direction) and, for a Gauss-Newton fit, the covariance and
+    cofactor of its unknowns: what :func:`scan_model_from_json` rebuilds it from."""
+    model, orbit, scale = fit.model, fit.model.orbit, _json_scale()
+    result = {
+        "unknowns": {_json_key(u): float(getattr(model, u)) * s for u, s in zip(SCAN_UNKNOWNS, scale, strict=True)},
+        "direction": model.direction, "n_pixels": model.n_pixels, "n_scans": model.n_scans,
+        "orbit": {"inclination_deg": float(np.degrees(orbit.inclination)), "period_s": float(orbit.period),
+                  "altitude_m": float(orbit.altitude), "earth_day_s": float(orbit.earth_day),
+                  "radius_m": float(orbit.radius)},
+    }
+    adjustment = fit.adjustment
+    if adjustment is not None:
+        order = [SCAN_UNKNOWNS.index(name) for name in adjustment.parameter_names]
+        for key, matrix in (("covariance", adjustment.covariance), ("cofactor", adjustment.cofactor)):
+            in_order = np.empty((len(SCAN_UNKNOWNS),) * 2)
+            in_order[np.ix_(order, order)] = np.asarray(matrix)
+            result[key] = (scale[:, None] * in_order * scale[None, :]).tolist()
+    return result
+
+
+def scan_model_from_json(document: dict) -> tuple[ScanModel, np.ndarray | None]:
+    """The scan model of a ``seaice rectify --json`` document (:func:`orbit_fit_json`) and the a posteriori
+    covariance ``(5, 5)`` of its unknowns (:data:`SCAN_UNKNOWNS`, radians and pixels; ``None`` for an Appendix C
+    fit, which has none).
+
+    Raises:
+        SeaiceError: naming the key that is missing or of another ``format``.
+    """
+    if document.get("format") != JSON_FORMAT:
+        raise SeaiceError(f"not a seaice rectify document of format {JSON_FORMAT!r} (its format: "
+                          f"{document.get('format')!r})")
+    try:
+        stored = document["model"]
+        unknowns, orbit = stored["unknowns"], stored["orbit"]
+        scale = _json_scale()
+        model = ScanModel(
+            **{u: unknowns[_json_key(u)] / s for u, s in zip(SCAN_UNKNOWNS, scale, strict=True)},
+            orbit=Orbit(np.radians(orbit["inclination_deg"]), orbit["period_s"], orbit["altitude_m"],
+                        orbit["earth_day_s"], orbit["radius_m"]),
+            direction=stored["direction"], n_pixels=int(stored["n_pixels"]), n_scans=int(stored["n_scans"]))
+    except KeyError as error:
+        raise SeaiceError(f"seaice rectify document: no {error.args[0]!r} in its model") from None
+    covariance = None
+    if "covariance" in stored:
+        covariance = np.asarray(stored["covariance"], float) / (scale[:, None] * scale[None, :])
+    return model, covariance
+
+
 def orbit_fit_json(fit: OrbitFit, check=None) -> dict:
-    """The orbit-fit report as JSON-ready data (keys of the ``seaice rectify --json`` output)."""
+    """The orbit-fit report as JSON-ready data (keys of the ``seaice rectify --json`` output): the report's numbers,
+    the model with what rebuilds it and its covariance (``model``: :func:`scan_model_from_json`), the package
+    ``version``, the document's ``format`` and the ``units`` of its numbers (:data:`JSON_UNITS`)."""
     dlat, dlon = fit.dlat_arcmin, fit.dlon_arcmin
     flag_1985, flag_w = fit.flagged_1985, fit.flagged_w_test()
     dev_lat, dev_lon = fit.dev_arcmin
     adjustment = fit.adjustment
     result = {
+        "format": JSON_FORMAT,
+        "version": __version__,
+        "units": JSON_UNITS,
+        "model": _model_json(fit),
         "parameters": _parameters(fit),
         "parameter_sigma": _parameter_sigma(fit),
         "method": fit.method,

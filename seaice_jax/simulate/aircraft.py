@@ -10,7 +10,8 @@ instruments record is the truth corrupted by the error sources the sources descr
   ``record_noise`` on the positions, ``velocity_noise`` on the velocities (north/east; an INS velocity is far
   more precise than its position: a few cm/s against tens of metres);
 * the altimeter: Gaussian noise;
-* the radar: true sweep delay and range scale differ from the nominal ones; time marks jitter;
+* the radar: each strip's true sweep delay and range scale differ from the nominal ones by a random calibration
+  error (σ ``sweep_delay_error``, ``range_scale_error``); time marks jitter;
 * image measurements: Gaussian noise in x and in the slant-range coordinate y; the ground-range error it causes
   grows toward near range as 1/sin θ (the ground-range resolution), through the geometry.
 
@@ -46,8 +47,8 @@ class ErrorModel:
     turn_perturbation: float = 300.0
     record_noise: float = 30.0
     altimeter_noise: float = 5.0
-    sweep_delay_error: float = 0.4  # mm
-    range_scale_error: float = 0.005  # relative
+    sweep_delay_error: float = 0.4  # mm, σ of each strip's sweep-delay calibration error
+    range_scale_error: float = 0.005  # relative, σ of each strip's range-scale calibration error
     time_mark_jitter: float = 0.05  # s
     image_noise: float = 0.04  # mm, in x and in y (10 m of slant range at 250 m/mm)
     velocity_noise: float = 0.03  # m/s, white, on each recorded north/east velocity
@@ -166,10 +167,14 @@ def simulate_flight(plan: FlightPlan, errors: ErrorModel, rng: np.random.Generat
     turn_offsets = np.zeros((plan.strips, 2))
     turn_offsets[1:] = np.cumsum(rng.normal(0.0, errors.turn_perturbation, (plan.strips - 1, 2)), axis=0)
     drift_direction, schuler_phase = rng.uniform(0.0, 2 * np.pi, 2)  # each flight's INS errs its own way
-    true_sweep = plan.sweep_delay + errors.sweep_delay_error
-    true_scale = plan.range_scale * (1.0 + errors.range_scale_error)
+    # each strip's recording has its own calibration error, drawn from a child generator so that the other
+    # draws (and the simulations built on them) do not depend on whether the calibration errors are switched on
+    calibration = rng.spawn(1)[0].normal(0.0, 1.0, (plan.strips, 2))
+    true_sweeps = plan.sweep_delay + errors.sweep_delay_error * calibration[:, 0]
+    true_scales = plan.range_scale * (1.0 + errors.range_scale_error * calibration[:, 1])
     records, truths = [], []
     for k in range(plan.strips):
+        true_sweep, true_scale = true_sweeps[k], true_scales[k]
         direction = 1.0 if k % 2 == 0 else -1.0
         # across track (to the look side of strip 0), swath k spans [near + k step, far + k step]: a strip flown
         # the other way looks back across its line, so its line lies beyond its swath

@@ -9,6 +9,7 @@ GeoTIFF, GeoJSON and PNG maps.
 """
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -75,13 +76,17 @@ def _compare_methods(scenario, runs) -> list[str]:
     return lines
 
 
-def _image_sequence(out_dir: Path, images: int = 4, size: int = 160):
+def _image_sequence(out_dir: Path, images: int, size: int, say: Callable[[str], None]):
     """``images`` simulated NOAA-7-like images (``size`` pixels square) of moving pack ice (one cloudy) through the
     whole workflow, and the tracked drift against the simulation's truth."""
+    say(f"image sequence: simulating {images} images of {size} x {size} pixels")
     sequence = simulate_sequence(0, n_images=images, size=size, clouds=True)
     project = write_simulated_sequence(out_dir / "project", sequence=sequence)
+    say("image sequence: rectifying and remapping")
     remapped = run_remap(project, out_dir / "remapped", progress=False)
+    say("image sequence: tracking the ice")
     tracked = run_track(out_dir / "remapped", out_dir / "drift", progress=False)
+    say("image sequence: velocities, deformation and the film")
     speeds = run_velocities(out_dir / "drift" / "floes.csv", out_dir / "velocities", box_size=75_000.0)
     film = run_movie(out_dir / "remapped", out_dir / "film.gif", land_mask=out_dir / "project" / "land_mask.npy",
                      records=out_dir / "drift" / "floes.csv")
@@ -256,12 +261,15 @@ def _orbit_fit(model: ScanModel, out_dir: Path):
     return fit, report, files
 
 
-def _radar_block(out_dir: Path):
+def _radar_block(out_dir: Path, say: Callable[[str], None]):
     """A small simulated AIDJEX-like block (3 strips, two coverages 16 days apart) by both methods: the report
     lines and files."""
+    say("radar block: simulating 3 strips over drifting ice")
     scenario = aidjex_scenario(0, plan=FlightPlan(strips=3), features=200)
     project = write_project(scenario, out_dir / "aidjex")
+    say("radar block: simultaneous adjustment")
     block = run_block(project, out_dir / "aidjex" / "simultaneous")
+    say("radar block: the sequential method of 1979")
     sequential = run_block(project, out_dir / "aidjex" / "sequential", method="sequential")
     lines = ["  radar block (simulated AIDJEX, 3 strips, 16 days of drift; project in aidjex/, results in "
              "aidjex/simultaneous/ and aidjex/sequential/):",
@@ -295,17 +303,27 @@ def _summary(radar: RadarStripCheck, image: ImageCheck, fit_report: str) -> list
     ]
 
 
-def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False, quick: bool = False) -> DemoResult:
+def _silent(message: str) -> None:
+    """A ``say`` that says nothing."""
+
+
+def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False, quick: bool = False,
+             say: Callable[[str], None] | None = None) -> DemoResult:
     """Run the demo and write its files into ``out_dir`` as one run (:func:`~seaice_jax.outputs.output_folder`;
     ``overwrite`` replaces an existing one whole); ``quick``: a shorter image sequence (3 images of 128 pixels
-    instead of 4 of 160), the same steps."""
+    instead of 4 of 160), the same steps; ``say`` receives a message as each stage starts (the command line prints
+    them)."""
+    say = say or _silent
     out_dir = Path(out_dir)
     with output_folder(out_dir, overwrite) as folder:
+        say("geolocating a radar strip and the 1985 satellite image")
         radar, image = geolocate_radar_strip(), geolocate_figure_3_3()
         files = _write_geolocation(radar, image, folder.path)
+        say("fitting the satellite image's orbit to the Figure 3-3 stations")
         fit, fit_report, fit_files = _orbit_fit(image.model, folder.path)
-        block_lines, block_files = _radar_block(folder.path)
-        sequence_lines, sequence_files = _image_sequence(folder.path / "sequence", *((3, 128) if quick else (4, 160)))
+        block_lines, block_files = _radar_block(folder.path, say)
+        sequence_lines, sequence_files = _image_sequence(folder.path / "sequence", *((3, 128) if quick else (4, 160)),
+                                                         say=say)
         files = list(folder.final(files + fit_files + block_files + sequence_files))
     lines = [*_summary(radar, image, fit_report), *block_lines, *sequence_lines,
              f"  wrote {len(files)} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "

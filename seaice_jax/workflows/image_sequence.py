@@ -36,12 +36,14 @@ from seaice_jax.drift.kinematics import (
 from seaice_jax.drift.records import FloeRecords, read_records, write_records
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.geometry.crs import CrsProjection
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
 from seaice_jax.imagery.movie import render_frames, write_movie
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, track
 from seaice_jax.io.products import (
+    read_geotiff,
     write_drift_netcdf,
     write_fixes_geojson,
     write_geotiff,
@@ -65,7 +67,7 @@ from seaice_jax.report.figures import (
     plot_velocity_series,
 )
 from seaice_jax.simulate.satellite import land_mask, scene_xy, simulate_sequence, true_displacement
-from seaice_jax.timefmt import time_after
+from seaice_jax.timefmt import format_time, parse_time, time_after
 
 Result = TypeVar("Result")
 _UNKNOWNS = len(SCAN_UNKNOWNS)
@@ -110,9 +112,10 @@ class RemappedStack:
         values: ``(images, n_rows, n_columns)`` remapped pixels (NaN outside the swath). valid: same shape, bool.
         times: ``(images,)`` s since ``epoch`` (ISO 8601 UTC). names: the images' names.
         grid: the map grid; grid_spec: its definition (projection, centre_deg, pixel_m, shape).
-        models: the scan model of each image. covariance: ``(5·images, 5·images)`` of their unknowns
-        (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`, block-diagonal: one fit per image; zero for given models).
-        sigma: ``(images, n_rows, n_columns)`` m, geolocation σ of every grid pixel.
+        models: the scan model of each image (empty for GeoTIFFs made elsewhere: :func:`geotiff_stack`).
+        covariance: ``(5·images, 5·images)`` of their unknowns (:data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`,
+        block-diagonal: one fit per image; zero for given models). sigma: ``(images, n_rows, n_columns)`` m,
+        geolocation σ of every grid pixel (NaN: unknown).
     """
 
     values: np.ndarray
@@ -314,6 +317,57 @@ def load_remapped(directory: str | os.PathLike) -> RemappedStack:
                          stored["sigma"])
 
 
+def _same_grid(a: MapGrid, b: MapGrid) -> bool:
+    """Same projection (PROJ definition), shape and geotransform (to 1e-9 of a pixel)."""
+    return (a.shape == b.shape and a.projection.proj_string() == b.projection.proj_string()
+            and all(abs(float(getattr(a, f)) - float(getattr(b, f))) <= 1e-9 * float(a.pixel_width)
+                    for f in ("x_first", "y_first", "pixel_width", "pixel_height")))
+
+
+def geotiff_stack(paths, times=None) -> RemappedStack:
+    """Single-band GeoTIFFs of one grid made by any tool (:func:`~seaice_jax.io.products.read_geotiff`) as a
+    stack without scan models (a tracked displacement's σ is then the tracking σ alone).
+
+    Args:
+        paths: two or more GeoTIFF files, in time order. times: their ISO 8601 UTC times (default: each file's
+            TIFF ``DateTime`` tag).
+
+    Raises:
+        SeaiceError: naming the file whose grid (CRS, geotransform, shape) differs from the first's, or whose time
+            is missing or not later than the one before.
+    """
+    paths = [Path(p) for p in paths]
+    if times is not None and len(times) != len(paths):
+        raise SeaiceError(f"--times: {len(times)} times for {len(paths)} GeoTIFF files")
+    values, grid = [], None
+    moments = []
+    for k, path in enumerate(paths):
+        image, image_grid, tag_time = read_geotiff(path)
+        if grid is None:
+            grid = image_grid
+        elif not _same_grid(image_grid, grid):
+            raise SeaiceError(f"{path}: its grid (CRS, geotransform or shape) differs from that of {paths[0]}")
+        moment = times[k] if times is not None else tag_time
+        if moment is None:
+            raise SeaiceError(f"{path}: no time (no TIFF DateTime tag): give each file's time with --times")
+        try:
+            moments.append(parse_time(moment))
+        except ValueError:
+            raise SeaiceError(f"{path}: time {moment!r} is not an ISO 8601 date-time") from None
+        values.append(image)
+    assert grid is not None  # paths is not empty
+    seconds = np.array([(m - moments[0]).total_seconds() for m in moments])
+    later = np.diff(seconds) > 0
+    if not later.all():
+        raise SeaiceError(f"{paths[int(np.argmin(later)) + 1]}: its time is not later than that of the file before")
+    stack_values = np.stack(values)
+    projection = grid.projection
+    definition = projection.definition if isinstance(projection, CrsProjection) else f"EPSG:{projection.epsg_code()}"
+    return RemappedStack(stack_values, np.isfinite(stack_values), seconds, tuple(p.stem for p in paths),
+                         format_time(moments[0]), grid, {"projection": definition}, (), np.zeros((0, 0)),
+                         np.full(stack_values.shape, np.nan))
+
+
 def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathLike,
                    progress: bool = False) -> tuple[Path, ...]:
     """``<image>.tif`` (GeoTIFF), ``remapped.npz``, ``rectification.csv`` (control-point deviations per image, as
@@ -427,8 +481,12 @@ def _track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking
     good = pair.good
     vectors = pair.in_map(stack.grid)
     x, y, dx, dy = (vectors[key] for key in ("x", "y", "dx", "dy"))
-    sigma = displacement_sigma(stack.models[k:k + 2], stack.pair_covariance(k), stack.grid, x, y, dx, dy,
-                               tracking_sigma * float(stack.grid.pixel_width))
+    if stack.models:
+        sigma = displacement_sigma(stack.models[k:k + 2], stack.pair_covariance(k), stack.grid, x, y, dx, dy,
+                                   tracking_sigma * float(stack.grid.pixel_width))
+    else:  # GeoTIFFs without scan models: the tracking alone
+        sigma = np.column_stack([np.full(x.shape, tracking_sigma * float(stack.grid.pixel_width)),
+                                 np.full(y.shape, tracking_sigma * float(stack.grid.pixel_height))])
     interval = float(stack.times[k + 1] - stack.times[k])
     east, north = (np.asarray(a) for a in grid_to_east_north(stack.grid.projection, x, y, dx / interval,
                                                               dy / interval))
@@ -443,7 +501,8 @@ def _track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking
 
 def _follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, progress: bool) -> FloeRecords:
     """Floe records of the lattice points of the first image, followed from image to image while their tracking
-    stays good: grid position -> latitude, longitude and each image's own pixel and scan line."""
+    stays good: grid position -> latitude, longitude and each image's own pixel and scan line (the grid's 1-based
+    column and row for images without a scan model)."""
     floe_row, floe_column = rows.copy(), columns.copy()
     alive = np.ones(rows.size, bool)
     fixes = [(np.arange(rows.size), 0, rows.copy(), columns.copy())]
@@ -458,7 +517,8 @@ def _follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions,
     for ids, k, fix_rows, fix_columns in fixes:
         x, y = stack.grid.to_xy(fix_rows, fix_columns)
         lat, lon = (np.asarray(a) for a in stack.grid.projection.inverse(x, y))
-        pixel, scan = (np.asarray(a) for a in stack.models[k].inverse(lat, lon))
+        pixel, scan = ((np.asarray(a) for a in stack.models[k].inverse(lat, lon)) if stack.models
+                       else (np.asarray(fix_columns) + 1.0, np.asarray(fix_rows) + 1.0))
         columns_out["floe"] += [f"G{i:04d}" for i in ids]
         columns_out["time"].append(np.full(ids.size, stack.times[k]))
         columns_out["image"] += [stack.names[k]] * ids.size
@@ -540,14 +600,17 @@ def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str |
     return tuple(files)
 
 
-def run_track(remapped_dir: str | os.PathLike, out_dir: str | os.PathLike,
-              options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
-              progress: bool = True, overwrite: bool = False, layout: str = "project") -> Step[TrackedSequence]:
-    """Track the ice through the stack written by :func:`run_remap` (:func:`track_sequence`) and write it
-    (:func:`write_tracked`, ``layout`` ``"project"`` or ``"osisaf"``) as one run
-    (:func:`~seaice_jax.outputs.output_folder`)."""
-    with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
-        stack = load_remapped(remapped_dir)
+def run_track(remapped_dir, out_dir: str | os.PathLike, options: TrackingOptions | None = None,
+              tracking_sigma: float = 0.2, progress: bool = True, overwrite: bool = False, layout: str = "project",
+              times=None) -> Step[TrackedSequence]:
+    """Track the ice (:func:`track_sequence`) through the stack written by :func:`run_remap` (``remapped_dir``: its
+    folder) or through GeoTIFFs of one grid made elsewhere (``remapped_dir``: a list of files, ``times`` their ISO
+    8601 times unless their DateTime tags give them: :func:`geotiff_stack`), and write it (:func:`write_tracked`,
+    ``layout`` ``"project"`` or ``"osisaf"``) as one run (:func:`~seaice_jax.outputs.output_folder`)."""
+    files_given = isinstance(remapped_dir, list | tuple)
+    inputs = tuple(remapped_dir) if files_given else (remapped_dir,)
+    with output_folder(out_dir, overwrite, inputs=inputs) as folder:
+        stack = geotiff_stack(remapped_dir, times) if files_given else load_remapped(remapped_dir)
         if len(stack.names) < 2:
             raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
         tracked = track_sequence(stack, options, tracking_sigma, progress)
@@ -611,8 +674,8 @@ def floe_kinematics(records: FloeRecords, projection: str = "nsidc-north", box_s
 
 def _deformation_columns(result: FloeKinematics) -> dict:
     v, epoch = result.velocities, result.records.epoch
-    rows = {k: [] for k in ("start", "end", "x_m", "y_m", "divergence_s", "sigma_divergence_s", "shear_s",
-                            "sigma_shear_s", "vorticity_s", "sigma_vorticity_s")}
+    rows = {k: [] for k in ("start", "end", "x_m", "y_m", "divergence_per_s", "sigma_divergence_per_s",
+                            "shear_per_s", "sigma_shear_per_s", "vorticity_per_s", "sigma_vorticity_per_s")}
     for time, interval, rates in result.deformation:
         at = v.time == time
         centre = np.stack([v.x[at], v.y[at]], 1)[rates.triangles].mean(axis=1)
@@ -621,8 +684,8 @@ def _deformation_columns(result: FloeKinematics) -> dict:
         rows["x_m"].append(centre[:, 0])
         rows["y_m"].append(centre[:, 1])
         for name in ("divergence", "shear", "vorticity"):
-            rows[f"{name}_s"].append(getattr(rates, name))
-            rows[f"sigma_{name}_s"].append(getattr(rates, f"sigma_{name}"))
+            rows[f"{name}_per_s"].append(getattr(rates, name))
+            rows[f"sigma_{name}_per_s"].append(getattr(rates, f"sigma_{name}"))
     return {k: np.concatenate(val) if k not in ("start", "end") else np.array(val) for k, val in rows.items()}
 
 

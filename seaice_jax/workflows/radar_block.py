@@ -6,6 +6,7 @@ into text and :func:`write_block` into files. A failing project therefore leaves
 """
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -93,6 +94,15 @@ def _sequential(project: Project):
     for coverage in project.coverages:
         control = {p: np.array(v[:2]) for p, v in coverage.control.items()} or None
         result = sequential_block(coverage.strips, coverage.measurements, project.plane, control=control)
+        unsolved = np.nonzero(~np.isfinite(result.rectified).all(axis=1))[0]
+        if unsolved.size:
+            k = unsolved[0]
+            more = f" (and {unsolved.size - 1} more such measurements)" if unsolved.size > 1 else ""
+            raise SeaiceError(f"coverage {coverage.name!r}: point {project.point_ids[coverage.measurements.point[k]]} "
+                              f"is measured (strip {coverage.strips[coverage.measurements.strip[k]].name}) but has no "
+                              "ground solution with the nadir-calibrated radar constants and the navigation: its "
+                              f"slant range is shorter than the flying height, off the film's ground range{more}; "
+                              "correct or remove its measurement")
         results.append(result)
         positions.append(result.point_positions(coverage.measurements, n))
     return tuple(results), tuple(positions)
@@ -245,7 +255,8 @@ def _point_columns(result: BlockAnalysis) -> dict:
     lat, lon = project.plane.inverse(xy[:, 0], xy[:, 1])
     columns = {"point": [project.point_ids[p] for s in seen for p in s],
                "coverage": [c.name for c, s in zip(project.coverages, seen, strict=True) for _ in s],
-               "x_m": xy[:, 0], "y_m": xy[:, 1], "lat": np.degrees(np.asarray(lat)), "lon": np.degrees(np.asarray(lon))}
+               "x_m": xy[:, 0], "y_m": xy[:, 1], "lat_deg": np.degrees(np.asarray(lat)),
+               "lon_deg": np.degrees(np.asarray(lon))}
     if result.covariances is not None:
         cov = np.concatenate([c[s] for c, s in zip(result.covariances, seen, strict=True)]).reshape(-1, 2, 2)
         major, minor, angle = error_ellipses(cov)
@@ -377,6 +388,10 @@ def _drift_figures(result: BlockAnalysis, out: Path) -> list[Path]:
     return files
 
 
+def _silent(message: str) -> None:
+    """A ``say`` that says nothing."""
+
+
 def write_block(result: BlockAnalysis, out_dir: str | os.PathLike, report: str | None = None) -> tuple[Path, ...]:
     """Write ``adjusted_points.csv`` (with σ and 95 % error ellipses for the simultaneous method), ``drift.csv``,
     ``drift.geojson``, figures and ``report.txt`` (``report``, default :func:`block_report`); the simultaneous method
@@ -395,11 +410,18 @@ def write_block(result: BlockAnalysis, out_dir: str | os.PathLike, report: str |
 
 
 def run_block(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "simultaneous",
-              options: BlockOptions | None = None, overwrite: bool = False) -> BlockRun:
+              options: BlockOptions | None = None, overwrite: bool = False,
+              say: Callable[[str], None] | None = None) -> BlockRun:
     """Read the project, :func:`adjust_block` it, and :func:`write_block` its files into ``out_dir`` (one run, one
-    folder: :func:`~seaice_jax.outputs.output_folder`; ``overwrite`` replaces an existing one whole)."""
+    folder: :func:`~seaice_jax.outputs.output_folder`; ``overwrite`` replaces an existing one whole); ``say``
+    receives a message as each stage starts (the command line prints them)."""
+    say = say or _silent
     with output_folder(out_dir, overwrite, inputs=(project_path,)) as folder:
-        result = adjust_block(read_project(project_path), method, options)
+        say(f"reading {project_path}")
+        project = read_project(project_path)
+        say(f"adjusting the block ({method}; the first run compiles for a minute or more)")
+        result = adjust_block(project, method, options)
         report = block_report(result)
+        say("writing tables and figures")
         files = folder.final(write_block(result, folder.path, report))
     return BlockRun(files, report, result)

@@ -21,7 +21,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 from seaice_jax.imagery.ties import TieOptions, TiePoints, find_ties, grid_mask
-from seaice_jax.io.sequence import SequenceProject, read_sequence
+from seaice_jax.io.sequence import MODEL_KEYS, SequenceProject, read_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.workflows.image_sequence import Step, rectify_images, save_models
 
@@ -116,16 +116,18 @@ def adjust_report(result: AdjustedSequence) -> str:
 
 
 def write_adjusted(result: AdjustedSequence, out_dir: str | os.PathLike) -> tuple[Path, ...]:
-    """``models.npz`` (:func:`~seaice_jax.workflows.image_sequence.save_models`), ``models.csv`` and, for the
+    """``models.npz`` (:func:`~seaice_jax.workflows.image_sequence.save_models`), ``models.csv`` (each unknown and
+    its σ, angles in degrees: the keys of a given model, :data:`~seaice_jax.io.sequence.MODEL_KEYS`) and, for the
     simultaneous method, ``ties.csv``."""
     out = Path(out_dir)
     files = [save_models(out / "models.npz", result.names, result.models, result.covariance, result.sigma0,
                          result.method)]
     sigma = np.sqrt(np.diag(result.covariance)).reshape(-1, len(SCAN_UNKNOWNS))
     columns: dict = {"image": np.array(result.names)}
-    for j, unknown in enumerate(SCAN_UNKNOWNS):
-        columns[unknown] = np.array([float(getattr(m, unknown)) for m in result.models])
-        columns[f"{unknown}_sigma"] = sigma[:, j]
+    for j, (unknown, key) in enumerate(zip(SCAN_UNKNOWNS, MODEL_KEYS, strict=True)):
+        scale = 1.0 if key == unknown else np.degrees(1.0)  # subtrack_pixel in pixels, the angles in degrees
+        columns[key] = np.array([float(getattr(m, unknown)) for m in result.models]) * scale
+        columns[f"sigma_{key}"] = sigma[:, j] * scale
     files.append(write_csv(out / "models.csv", columns, float_format="%.12g"))
     if result.ties is not None and result.adjustment is not None:
         ties = result.ties
