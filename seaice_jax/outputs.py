@@ -101,9 +101,13 @@ class OutputFolder:
     path: Path
     target: Path
 
+    folder: bool = True
+
     def final(self, paths: Iterable[str | os.PathLike]) -> tuple[Path, ...]:
-        """``paths`` written under :attr:`path`, as they will be named under :attr:`target`."""
-        return tuple(self.target / Path(p).relative_to(self.path) for p in paths)
+        """``paths`` written under :attr:`path`, as they will be named under :attr:`target` (a single-file target:
+        the file ``path / target.name`` becomes ``target`` itself)."""
+        base = self.target if self.folder else self.target.parent
+        return tuple(base / Path(p).relative_to(self.path) for p in paths)
 
 
 def _lock(target: Path) -> int:
@@ -219,7 +223,7 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
                 staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
                 os.chmod(staging, 0o777 & ~current_umask())
             _check_target(target, folder, overwrite, ())
-            yield OutputFolder(staging, target)
+            yield OutputFolder(staging, target, folder)
             check_interrupted()
             with _signals_held():
                 _move_into_place(staging, target, folder)

@@ -1,7 +1,7 @@
 """The simultaneous block starts from the sweep delay the nadir returns give, so the near-range edge of a strip has
 a ground point whatever the radar's nominal constants: the Prudhoe simulations run through both methods for every
-seed (with the nominal constants a sweep-delay error of 0.4 mm put the strip's first kilometre inside the flying
-height, and a control point there stopped the block); a measurement really off the film's ground range (slant
+seed (with the nominal constants a sweep-delay error of a few tenths of a mm put the strip's first kilometre inside the
+flying height, and a control point there stopped the block); a measurement really off the film's ground range (slant
 range 1 m shorter than the flying height) is refused by name by both methods, never dropped."""
 
 from dataclasses import replace
@@ -20,7 +20,7 @@ from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_sc
 from seaice_jax.workflows.radar_block import adjust_block
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+@pytest.mark.parametrize("seed", [1, 2, 5, 7])  # 1, 5, 7: control points the nominal start lost
 def test_every_prudhoe_measurement_has_a_start_and_the_start_sweep_delay_fits_the_truth(seed):
     scenario = prudhoe_scenario(seed)
     measured = sum(c.measurements.x.size for c in scenario.coverages)
@@ -37,7 +37,7 @@ def test_every_prudhoe_measurement_has_a_start_and_the_start_sweep_delay_fits_th
 
 @pytest.fixture(scope="module")
 def prudhoe_project(tmp_path_factory):
-    """Seed 1: with the nominal constants its control point P0006 had no ground point and the block stopped."""
+    """Seed 1: with the nominal constants two control points of day 5 had no ground point and the block stopped."""
     return read_project(write_project(prudhoe_scenario(1), tmp_path_factory.mktemp("prudhoe") / "project"))
 
 
@@ -50,7 +50,7 @@ def test_prudhoe_seed_1_runs_through_both_methods(prudhoe_project, method):
     error = np.linalg.norm(analysis.positions[0][rows] - scenario.truth[0].positions[measured], axis=1)
     assert np.all(np.isfinite(error))
     # 20 control points of ±50 m: the simultaneous block predicts ~30 m per point; the sequential method is cruder
-    assert np.sqrt(np.mean(error**2)) < (60.0 if method == "simultaneous" else 300.0)  # measured: 26 m, 132 m
+    assert np.sqrt(np.mean(error**2)) < (60.0 if method == "simultaneous" else 300.0)  # measured: 28 m, 132 m
 
 
 def _off_film(coverage, k, margin, calibration):

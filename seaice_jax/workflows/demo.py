@@ -108,7 +108,7 @@ def _image_sequence(out_dir: Path, images: int, size: int, say: Callable[[str], 
              *["    " + line for line in remapped.report.splitlines()],
              *["    " + line for line in tracked.report.splitlines()],
              *["    " + line for line in speeds.report.splitlines()],
-             f"    {film.report}",
+             f"    {film.report.replace(str(out_dir.parent) + os.sep, '')}",
              f"    tracked drift of the first pair against the truth ({errors['fitted'][2]} vectors), error "
              f"length median / RMS: {errors['fitted'][0]:.2f} / {errors['fitted'][1]:.2f} km with the fitted scan "
              f"models, {errors['true'][0]:.2f} / {errors['true'][1]:.2f} km with the true ones: the rectification "
