@@ -158,7 +158,8 @@ def _block(args) -> int:
 
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
                            knot_spacing=args.knot_spacing, radar_constants=args.radar_constants,
-                           take_off_time=args.take_off_time)
+                           take_off_time=args.take_off_time, image_sigma=tuple(args.image_sigma),
+                           variance_components=args.variance_components, robust=args.robust)
     run = run_block(args.project, args.out, args.method, options, overwrite=args.overwrite, say=_stages(args))
     _say(args, run.report)
     _say(args, f"wrote {len(run.files)} files into {args.out}")
@@ -463,6 +464,14 @@ def build_parser() -> argparse.ArgumentParser:
     block.add_argument("--radar-constants", choices=["strip", "shared"], default="strip",
                        help="sweep delay and range scale (the radar's range calibration) per strip or one pair for "
                             "the block")
+    block.add_argument("--image-sigma", type=_POSITIVE, nargs=2, default=(0.042, 0.04), metavar=("ALONG", "RANGE"),
+                       help="mm, σ of the image measurements along track and in slant range (simultaneous)")
+    block.add_argument("--variance-components", action="store_true",
+                       help="estimate a variance factor per observation group (image x, image y, nadir, control; "
+                            "iterated Förstner/Helmert) and adjust with the σ rescaled by them")
+    block.add_argument("--robust", choices=["huber", "danish"], default=None,
+                       help="reweight the observations iteratively by their standardized residuals, for "
+                            "blunder-heavy data (the w-tests are those of the final weights)")
     block.add_argument("--out", required=True, help="output folder")
     block.set_defaults(run=_block)
     _sequence_commands(commands, common)

@@ -126,3 +126,21 @@ def test_bad_projects_name_file_and_line_and_write_nothing(project, tmp_path, ca
     assert main(["block", str(bad / "project.toml"), "--out", str(out)]) == 2
     assert re.search(message, capsys.readouterr().err)
     assert not out.exists()
+
+
+def test_block_variance_components_are_reported_near_one_on_a_simulation_with_the_stated_errors(project, tmp_path,
+                                                                                               capsys):
+    """The simulation draws its image and altimeter errors with the default σ: each estimated variance factor is
+    within 4 of its own σ of 1, and the report prints one line per group; robust and variance components together
+    are refused as a usage error."""
+    out = tmp_path / "vc"
+    assert main(["block", str(project / "project.toml"), "--variance-components", "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    rows = re.findall(r"^ {4}(image x \(along track\)|image y \(slant range\)|nadir returns): ([0-9.]+) ±([0-9.]+)",
+                      report, flags=re.MULTILINE)
+    assert len(rows) == 3, report
+    for _, value, sigma in rows:
+        assert abs(float(value) - 1.0) < 4.0 * float(sigma), rows
+    assert main(["block", str(project / "project.toml"), "--variance-components", "--robust", "huber",
+                 "--out", str(tmp_path / "both")]) == 2
+    assert not (tmp_path / "both").exists()

@@ -167,6 +167,9 @@ class BlockOptions:
             raise SeaiceError(f"robust must be None or one of {', '.join(ROBUST)}, got {self.robust!r}")
         if self.solver not in SOLVERS:
             raise SeaiceError(f"solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.variance_components and self.robust is not None:
+            raise SeaiceError("variance_components and robust are alternatives (the robust weights would be "
+                              "rescaled away): choose one")
 
 
 

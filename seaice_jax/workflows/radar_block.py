@@ -189,6 +189,10 @@ def _blunder_lines(result: BlockAnalysis) -> list[str]:
     return lines
 
 
+_GROUP_NAMES = {"image[0]": "image x (along track)", "image[1]": "image y (slant range)", "nadir": "nadir returns",
+                "control[0]": "control x", "control[1]": "control y"}
+
+
 def _simultaneous_lines(result: BlockAnalysis) -> list[str]:
     adjustment, options = result.adjustment, result.options
     assert adjustment is not None and result.covariances is not None
@@ -205,6 +209,15 @@ def _simultaneous_lines(result: BlockAnalysis) -> list[str]:
         sigma = np.sqrt(np.nanmean(np.diagonal(result.covariances[c], axis1=1, axis2=2), axis=0)) / 1000
         lines.append(f"{_coverage_line(coverage)}; tie discrepancies after adjustment ±{ties[0]:.3f}/±{ties[1]:.3f} "
                      f"km (x/y); mean point σ {sigma[0]:.3f}/{sigma[1]:.3f} km")
+    engine_result = adjustment.adjustment
+    components = None if engine_result is None else engine_result.variance_components
+    if components:
+        lines.append("  variance components (σ̂g² of each group, 1 when its a priori σ are right; the σ above are "
+                     "rescaled by them):")
+        lines += [f"    {_GROUP_NAMES.get(g, g)}: {c.value:.3f} ±{c.sigma:.3f} (redundancy {c.redundancy:.0f}, "
+                  f"p = {c.p_value:.3g})" for g, c in components.items()]
+    if options.robust is not None:
+        lines.append(f"  robust ({options.robust}) reweighting: the w-tests are those of the final weights")
     lines.append("  radar constants (sweep delay mm, range scale m/mm, ±σ):")
     strips = {(s.coverage, s.name): s for s in adjustment.strips}.values()
     lines += [f"    {s.coverage}/{s.name}: {s.sweep_delay:.3f} ±{s.sigma_sweep_delay:.3f}, {s.range_scale:.3f} "
