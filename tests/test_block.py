@@ -68,7 +68,10 @@ def noisy(scenario, rng, sigma=IMAGE_SIGMA, noise=1.0):
 
 @pytest.fixture(scope="module")
 def small():
-    scenario = aidjex_scenario(12, plan=FlightPlan(strips=2), errors=SYSTEMATIC, features=70, station_sigma=0.01)
+    # one pair of radar constants for the block (radar_constants="shared") while the simulation's calibration
+    # errors are drawn per strip: the small block's strips are recorded without them (the shared pair is exact)
+    errors = replace(SYSTEMATIC, sweep_delay_error=0.0, range_scale_error=0.0)
+    scenario = aidjex_scenario(12, plan=FlightPlan(strips=2), errors=errors, features=70, station_sigma=0.01)
     options = BlockOptions(image_sigma=(IMAGE_SIGMA, IMAGE_SIGMA), altimeter_sigma=0.0, radar_constants="shared")
     return scenario, options
 
@@ -91,13 +94,18 @@ def test_schur_complement_equals_the_dense_engine(small):
     assert -1e-9 < schur.redundancy.min() and schur.redundancy.max() < 1.0 and controlled.mean() > 0.15
 
 
-def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small):
-    """300 noise realizations: the empirical RMS about the noise-free solution equals the predicted σ (shared
+@pytest.mark.parametrize("runs", [100, pytest.param(300, marks=pytest.mark.slow)])
+def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small, runs):
+    """``runs`` noise realizations: the empirical RMS about the noise-free solution equals the predicted σ (shared
     radar constants correlate the two coverages, so the drift covariance needs its cross terms).
 
     No priors here but the flight model's small deviation prior: a prior is a pseudo-observation whose value the
     Monte Carlo would have to draw too (its σ is in the predicted covariance); the stations and the nadir returns
     determine everything else of the linear model.
+
+    Tolerances from the Monte Carlo error: the RMS of ``runs`` draws of one component has a relative standard error
+    s = 1/√(2 runs) (7.1 % at 100, 4.1 % at 300). Each station component within 5 s; the median over the drift
+    components within 1.2 s (the median of |N(0, s)| is 0.67 s); the ratios pooled over all components within 10 %.
     """
     scenario, options = small
     options = replace(options, solver="schur", navigation_model="linear", offset_prior=None, shape_prior=None,
@@ -106,7 +114,7 @@ def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small):
     exact = noisy(scenario, rng, noise=0.0)
     reference = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), options)
     station, drift = [], []
-    for _ in range(300):
+    for _ in range(runs):
         data = noisy(scenario, rng)
         result = simultaneous_block(data.coverages, data.plane, len(data.kinds), options)
         station.append(np.stack([result.positions[c][:3] - reference.positions[c][:3] for c in range(2)]))
@@ -114,12 +122,13 @@ def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small):
     station, drift = np.array(station), np.array(drift)
     predicted_station = np.stack([np.diagonal(reference.covariances[c][:3], axis1=1, axis2=2) for c in range(2)])
     ratio = np.sqrt(np.mean(station**2, axis=0) / predicted_station)
-    assert np.all(np.abs(ratio - 1.0) < 0.2)  # each station and component (MC error ~4 %)
+    error = 1.0 / np.sqrt(2 * runs)
+    assert np.all(np.abs(ratio - 1.0) < 5 * error)  # each station and component
     assert np.sqrt(np.mean(station**2) / np.mean(predicted_station)) == pytest.approx(1.0, abs=0.1)
     seen = np.isfinite(reference.drift[0]).all(axis=1)
     predicted_drift = np.diagonal(reference.drift_covariance[0][seen], axis1=1, axis2=2)
     ratio = np.sqrt(np.nanmean(drift[:, seen] ** 2, axis=0) / predicted_drift)
-    assert seen.sum() > 30 and np.median(np.abs(ratio - 1.0)) < 0.05
+    assert seen.sum() > 30 and np.median(np.abs(ratio - 1.0)) < 1.2 * error
     assert np.sqrt(np.nanmean(drift[:, seen] ** 2) / np.mean(predicted_drift)) == pytest.approx(1.0, abs=0.1)
     correlation = np.abs(reference.drift_covariance[0][seen][:, 0, 0] - sum(
         np.diagonal(reference.covariances[c][seen], axis1=1, axis2=2)[:, 0] for c in range(2)))

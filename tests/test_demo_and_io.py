@@ -13,8 +13,11 @@ def read_csv(path):
         return list(csv.DictReader(stream))
 
 
+@pytest.mark.slow
 def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
-    """The quick demo (a shorter image sequence: the same steps, the same files, the same checks)."""
+    """The quick demo (a shorter image sequence: the same steps, the same files, the same checks).
+
+    Minutes and ~3 GB: outside `make test`, run by `make test-slow`."""
     result = run_demo(tmp_path / "out", quick=True)
     names = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert names == ["aidjex", "figure_3_3_stations.csv", "map.png", "orbit_fit.json", "orbit_fit_report.txt",

@@ -16,7 +16,8 @@ from seaice_jax.adjust.engine import EngineOptions, solve
 from seaice_jax.adjust.problem import Problem, ResidualBlock
 
 ROWS, WIDTH, PREDICTORS = 256, 9, 2
-OPTIONS = EngineOptions("dense", max_steps=2000)
+OPTIONS = EngineOptions("dense", max_steps=2000, initial_damping=1e-3)
+"""Nielsen's damped first step (τ = 1e-3): the hard starts need it (MGH17 start 1 leaps off without it)."""
 REFUSED_FROM_START_1 = {"MGH10", "BoxBOD"}
 """Start 1 of these leads the damped Gauss-Newton towards a limit at infinity (a parameter the data stop
 determining): the engine must name the undetermined parameters, or (MGH10, still creeping along its valley after

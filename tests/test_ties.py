@@ -83,12 +83,13 @@ def test_tie_ids_are_shared_across_images(ties):
 def test_ties_agree_with_the_true_models_to_a_fraction_of_a_pixel(ties, sequence):
     """The matched position is the true correspondent whatever the errors of the models matched through
     (about a pixel here): RMS error < 0.15 pixel per coordinate, no blunder above half a pixel, and the stated σ
-    covers the error (normalised RMS ≤ 1.2)."""
+    is the error's (normalised RMS 0.7-1.2: the former 0.2 pixel floor made it 0.25)."""
     errors, sigmas = true_errors(ties, sequence)
     rms = np.sqrt(np.mean(errors**2, axis=0))
     assert np.all(rms < 0.15), rms
     assert np.abs(errors).max() < 0.5, np.abs(errors).max(axis=0)
-    assert np.all(np.sqrt(np.mean((errors / sigmas) ** 2, axis=0)) <= 1.2)
+    normalised = np.sqrt(np.mean((errors / sigmas) ** 2, axis=0))
+    assert np.all((normalised >= 0.7) & (normalised <= 1.2)), normalised
 
 
 def test_the_models_errors_are_what_the_matching_absorbs(ties, sequence, current):

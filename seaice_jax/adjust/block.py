@@ -433,7 +433,7 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
     # the image whitening follows the estimate: square sums before and after a step differ in weights, so every
     # Gauss-Newton step is taken (as the block adjustment always did)
     settings = engine.EngineOptions(solver, options.max_iterations, 0.0, options.tolerance, options.tolerance,
-                                    monotone=False, initial_damping=0.0)
+                                    monotone=False)
     solve_options = {"cross_points": cross, "layout": tables if solver == "schur" else None}
     names = tuple(layout.names)
     if options.variance_components:

@@ -16,6 +16,16 @@ observation is flagged. Removal sets σ to ∞ (the engine's padding), so every 
 rows and tie points are padded to bucket sizes the same way, so sequences of similar size share it too.
 With ``robust`` the first solve is an iteratively reweighted one (:func:`~seaice_jax.adjust.variance.robust_adjustment`)
 and the ties it down-weights below ``robust_cut`` are removed before the snooping.
+
+Stochastic model: the σ of the tie observations is the matcher's guess (:mod:`seaice_jax.imagery.ties`), the σ of
+the control points is the user's (map accuracy and pointing). Once no tie is flagged, the variance factor of every
+group named in ``variance_groups`` (default: the ties) is estimated (Förstner/Helmert,
+:func:`~seaice_jax.adjust.variance.variance_components`), its σ rescaled, and the snooping resumed with the
+rescaled σ until both settle. The covariance reported is then Q of the rescaled problem, not σ̂0² Q: one global
+σ̂0 is the ties' factor (they hold nearly all the redundancy), and scaling by it the part of the covariance that the
+control points carry (the absolute geolocation) made the models' stated position σ 4.3 times too small when σ̂0 was
+0.26 (experiments/results/sequence_block.md). The drift σ (the relative part, which the ties carry) is still stated
+too small there: see that file.
 """
 
 from collections.abc import Sequence
@@ -37,7 +47,7 @@ from seaice_jax.adjust.sequence_model import (
     sequence_observations,
     unknown_names,
 )
-from seaice_jax.adjust.variance import ROBUST, robust_adjustment
+from seaice_jax.adjust.variance import ROBUST, robust_adjustment, variance_components
 from seaice_jax.errors import ComputationError, SeaiceError
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.sensors.control import ControlPoints
@@ -55,6 +65,10 @@ class SequenceOptions:
         robust: ``None`` or a weight function of :data:`~seaice_jax.adjust.variance.ROBUST` for the first solve.
         robust_cut: ties with an observation down-weighted below this factor by the robust solve are removed.
         max_steps: of the engine's damped Gauss-Newton loop per solve.
+        variance_groups: prefixes of the observation groups whose variance factors are estimated once no tie is
+            flagged (module docstring); ``()``: none, the covariance is then σ̂0² Q.
+        variance_tolerance: the factors are iterated until each changes by less than this fraction (their own
+            relative σ is √(2/r), 0.06 for r = 500 tie coordinates: the default is well below it).
     """
 
     alpha: float = DEFAULT_ALPHA
@@ -63,6 +77,8 @@ class SequenceOptions:
     robust: str | None = None
     robust_cut: float = 0.1
     max_steps: int = 64
+    variance_groups: tuple[str, ...] = ("ties",)
+    variance_tolerance: float = 0.01
 
     def __post_init__(self):
         if not 0 < self.alpha < 1:
@@ -79,9 +95,11 @@ class SequenceAdjustment(eqx.Module):
     Attributes:
         models: the adjusted :class:`ScanModel` of every image.
         theta: ``(n_images, 5)`` their unknowns (order of :data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS`).
-        covariance: ``(5 n_images, 5 n_images)`` σ̂0² Q of all images' unknowns, cross-covariances between
-            images included (image i's unknowns are rows 5i..5i+4). cofactor: Q (a priori σ taken as right).
-        sigma0: a posteriori σ̂0. degrees_of_freedom: of the final adjustment.
+        covariance: ``(5 n_images, 5 n_images)`` of all images' unknowns, cross-covariances between images
+            included (image i's unknowns are rows 5i..5i+4): Q with the estimated variance factors, or σ̂0² Q
+            without (``variance_groups=()``). cofactor: Q (the final σ taken as right).
+        sigma0: a posteriori σ̂0 (with the final σ). degrees_of_freedom: of the final adjustment.
+        variance_factors: ``{group: σ̂g²}`` estimated (relative to the a priori σ; empty without).
         tie_latitude, tie_longitude: ``(n_ties,)`` radians, adjusted tie positions (NaN for removed ties).
         removed_ties: ids of the ties removed as mismatches, in the order found. rounds: adjustments solved.
         adjustment: the engine's final :class:`~seaice_jax.adjust.engine.Adjustment` (residuals, w-tests …; its
@@ -102,6 +120,7 @@ class SequenceAdjustment(eqx.Module):
     tie_longitude: np.ndarray
     removed_ties: tuple
     rounds: int
+    variance_factors: dict
     adjustment: engine.Adjustment
     observations: SequenceObservations
     names: tuple
@@ -210,6 +229,9 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
                 new = np.setdiff1d(np.asarray(block.point_index)[low], np.nonzero(removed)[0])
                 removed[new] = True
                 order += [int(t) for t in new]
+    estimated = [n for n in problem.blocks if n.startswith(tuple(options.variance_groups))]
+    factors = dict.fromkeys(estimated, 1.0)
+    settled = not estimated
     for _ in range(options.max_rounds):
         current = _without(problem, removed)
         result = engine.solve(current, engine_options, names)
@@ -218,10 +240,20 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
             raise ComputationError(f"the sequence adjustment did not converge in {options.max_steps} steps "
                                    f"(round {rounds}, {int(removed.sum())} ties removed)")
         worst = _worst_ties(current, result, options.alpha, options.batch)
+        if not worst and not settled:
+            result = variance_components(current, engine_options, names, groups=estimated,
+                                         tolerance=options.variance_tolerance, max_rounds=options.max_rounds)
+            change = {n: result.variance_components[n].value for n in estimated}
+            factors = {n: factors[n] * change[n] for n in estimated}
+            problem = engine.rescaled(problem, {n: np.sqrt(change[n]) for n in estimated})
+            current = _without(problem, removed)
+            settled = True
+            worst = _worst_ties(current, result, options.alpha, options.batch)
         if not worst:
             break
         removed[worst] = True
         order += worst
+        settled = not estimated
     else:
         raise SeaiceError(f"tie observations still flagged after {options.max_rounds} rounds of removal "
                           f"({int(removed.sum())} ties removed); raise max_rounds or check the tie matching")
@@ -232,7 +264,8 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     n_ties = observations.n_ties
     latitude, longitude = (np.where(removed[:n_ties], np.nan, np.asarray(a))
                            for a in observations.ground_at(result.parameters["points"][:n_ties]))
+    covariance = result.cofactor if estimated else result.covariance
     return SequenceAdjustment(
-        tuple(observations.models_at(jnp.asarray(theta))), theta, np.asarray(result.covariance),
+        tuple(observations.models_at(jnp.asarray(theta))), theta, np.asarray(covariance),
         np.asarray(result.cofactor), float(result.sigma0), result.degrees_of_freedom, latitude, longitude,
-        tuple(order), rounds, result, final, names, options.alpha)
+        tuple(order), rounds, factors, result, final, names, options.alpha)

@@ -106,6 +106,9 @@ def adjust_report(result: AdjustedSequence) -> str:
                      f"({min(pairs.values()) if pairs else 0}-{max(pairs.values()) if pairs else 0} ties each)")
         lines.append(f"  {adjusted.n_removed} ties removed as mismatches (w-tests at α = {adjusted.alpha}), "
                      f"{adjusted.rounds} adjustments, {adjusted.degrees_of_freedom} degrees of freedom")
+        for group, factor in adjusted.variance_factors.items():
+            lines.append(f"  {group}: σ estimated {np.sqrt(factor):.2f} times the a priori (variance factor "
+                         f"{factor:.3g}); the covariance uses it")
         for flag in adjusted.flagged()[:5]:
             lines.append(f"  still flagged: {flag.group} row {flag.row} component {flag.component}, w {flag.w:.1f}")
     sigma = np.sqrt(np.diag(result.covariance)).reshape(-1, len(SCAN_UNKNOWNS))
