@@ -12,7 +12,6 @@ Run: ``.venv/bin/python benchmarks/bench_sequence_block.py [--sizes 10 50 200] [
 import argparse
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,23 +22,12 @@ from _common import update_results  # noqa: E402
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.adjust.sequence_block import adjust_sequence  # noqa: E402
 from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns  # noqa: E402
+from seaice_jax.imagery.ties import TiePoints  # noqa: E402
 from seaice_jax.sensors.control import ControlPoints  # noqa: E402
 from seaice_jax.simulate.satellite import noaa_pass  # noqa: E402
 
 SIZE = 256
 START_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
-
-
-@dataclass(frozen=True)
-class Ties:
-    image: np.ndarray
-    tie: np.ndarray
-    pixel: np.ndarray
-    scan: np.ndarray
-    sigma_pixel: np.ndarray
-    sigma_scan: np.ndarray
-    latitude: np.ndarray
-    longitude: np.ndarray
 
 
 def synthetic_sequence(n_images: int, ties_per_image: int, rng):
@@ -72,8 +60,8 @@ def synthetic_sequence(n_images: int, ties_per_image: int, rng):
     noise = rng.normal(0, 0.3, (len(table), 2))
     sigma = np.full(len(table), 0.3)
     points = np.array(points)
-    ties = Ties(table[:, 0].astype(int), table[:, 1].astype(int), table[:, 2] + noise[:, 0],
-                table[:, 3] + noise[:, 1], sigma, sigma, points[:, 0], points[:, 1])
+    ties = TiePoints.measured(table[:, 0].astype(int), table[:, 1].astype(int), table[:, 2] + noise[:, 0],
+                              table[:, 3] + noise[:, 1], sigma, sigma, points[:, 0], points[:, 1])
     controls = []
     for model in models:
         pixel, scan = rng.uniform(10, SIZE - 10, (2, 4))

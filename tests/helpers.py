@@ -1,9 +1,9 @@
 """Shared test tools: central finite differences as the independent check of autodiff Jacobians; a tie table."""
 
-from dataclasses import dataclass
-
 import jax
 import numpy as np
+
+from seaice_jax.imagery.ties import TiePoints
 
 
 def central_difference_jacobian(function, x, relative_step=1e-6, absolute_step=1e-9, steps=None):
@@ -37,23 +37,10 @@ def assert_jacobian_matches(function, x, rtol=1e-6, atol_scale=1e-9, **steps):
     np.testing.assert_allclose(reverse, forward, rtol=1e-12, atol=1e-12 * np.max(np.abs(forward)))
 
 
-@dataclass(frozen=True)
-class Ties:
-    """The fields :func:`sequence_observations` reads from a tie table."""
-
-    image: np.ndarray
-    tie: np.ndarray
-    pixel: np.ndarray
-    scan: np.ndarray
-    sigma_pixel: np.ndarray
-    sigma_scan: np.ndarray
-    latitude: np.ndarray
-    longitude: np.ndarray
-
-
 def lattice_ties(models, latitude, longitude, size, sigma_pixel, sigma_scan):
     """Exact tie observations of ground points ``(n,)`` radians in every image of ``models`` (size x size) that
-    sees them, kept where two or more images do: a :class:`Ties` table with the given pointing σ (pixels)."""
+    sees them, kept where two or more images do: a :class:`~seaice_jax.imagery.ties.TiePoints` table with the
+    given pointing σ (pixels)."""
     rows = []
     for i, model in enumerate(models):
         pixel, scan = (np.asarray(a) for a in model.inverse(latitude, longitude))
@@ -64,5 +51,5 @@ def lattice_ties(models, latitude, longitude, size, sigma_pixel, sigma_scan):
     table = table[counts[table[:, 1].astype(int)] >= 2]
     kept, tie = np.unique(table[:, 1].astype(int), return_inverse=True)
     ones = np.ones(len(table))
-    return Ties(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma_pixel * ones, sigma_scan * ones,
-                latitude[kept], longitude[kept])
+    return TiePoints.measured(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma_pixel * ones,
+                              sigma_scan * ones, latitude[kept], longitude[kept])

@@ -1,6 +1,7 @@
 """The sequence block's observation model: residuals vanish at the truth, Jacobians match finite differences, the
 prior is whitened right, and a noise-free sequence adjusted through these residuals returns the true models."""
 
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +20,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
-from tests.helpers import Ties, lattice_ties
+from tests.helpers import lattice_ties
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
@@ -187,13 +188,10 @@ def test_noise_free_sequence_returns_the_true_models(truth, rng):
 
 def test_bad_input_names_the_culprit(truth):
     models, ties, controls = truth
-    bad_sigma = Ties(ties.image, ties.tie, ties.pixel, ties.scan, np.where(np.arange(ties.image.size) == 5, 0.0,
-                                                                             ties.sigma_pixel),
-                     ties.sigma_scan, ties.latitude, ties.longitude)
+    bad_sigma = replace(ties, sigma_pixel=np.where(np.arange(ties.image.size) == 5, 0.0, ties.sigma_pixel))
     with pytest.raises(SeaiceError, match=f"tie {ties.tie[5]} in image {ties.image[5]}"):
         sequence_observations(models, bad_sigma)
-    bad_image = Ties(ties.image + 3, ties.tie, ties.pixel, ties.scan, ties.sigma_pixel, ties.sigma_scan,
-                     ties.latitude, ties.longitude)
+    bad_image = replace(ties, image=ties.image + 3)
     with pytest.raises(SeaiceError, match="image index out of range"):
         sequence_observations(models, bad_image)
     covariance = np.tile(np.diag(PRIOR_SIGMA**2), (3, 1, 1))

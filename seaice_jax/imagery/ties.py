@@ -148,6 +148,18 @@ class TiePoints:
     candidates: dict
     search: dict
 
+    @classmethod
+    def measured(cls, image, tie, pixel, scan, sigma_pixel, sigma_scan, latitude, longitude) -> "TiePoints":
+        """Tie observations measured elsewhere (by hand, by another matcher, or simulated): the arrays as in the
+        attributes; no correlation (NaN), the first observation of each tie its reference, nothing searched."""
+        image, tie = np.asarray(image, int), np.asarray(tie, int)
+        first = np.zeros(tie.size, bool)
+        first[np.unique(tie, return_index=True)[1]] = True
+        return cls(image=image, tie=tie, pixel=np.asarray(pixel, float), scan=np.asarray(scan, float),
+                   sigma_pixel=np.asarray(sigma_pixel, float), sigma_scan=np.asarray(sigma_scan, float),
+                   correlation=np.full(tie.size, np.nan), reference=first, latitude=np.asarray(latitude, float),
+                   longitude=np.asarray(longitude, float), candidates={}, search={})
+
     @property
     def n_ties(self) -> int:
         return int(self.latitude.size)
