@@ -163,7 +163,7 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                 shared_radar = radar
             strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
     start_theta = _sweep_delay_starts(coverages, strip_slices, len(names))
-    point_key, point_unknown, sums, counts = [], {}, [], []
+    point_unknown, starts = {}, []
     tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
                               "north_rate", "east_rate", "y",
                               "sweep_delay", "range_scale", "sign", "time_per_mm")}
@@ -192,20 +192,16 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
             for key in table:
                 tables[key].append(table[key][valid])
             tables["index"].append(np.tile(np.concatenate([navigation, radar]), (int(valid.sum()), 1)))
-            for o, p in zip(rows[valid], m.point[rows[valid]], strict=True):
-                key = (-1 if options.static_points else c, int(p))
-                if key not in point_unknown:
-                    point_unknown[key] = len(point_key)
-                    point_key.append(key)
-                    sums.append(np.zeros(2))
-                    counts.append(0)
-                u = point_unknown[key]
-                tables["point"].append(np.array([u]))
-                sums[u] = sums[u] + start[np.searchsorted(rows, o)]
-                counts[u] += 1
-                coverage_of.append(c)
-                strip_of.append(j)
-                point_of.append(int(p))
+            ids = m.point[rows[valid]].astype(int).tolist()
+            owner = -1 if options.static_points else c
+            for p in dict.fromkeys(ids):  # new points numbered in order of first measurement
+                point_unknown.setdefault((owner, p), len(point_unknown))
+            units = np.array([point_unknown[(owner, p)] for p in ids], int)
+            tables["point"].append(units)
+            starts.append(start[valid])
+            coverage_of.append(np.full(units.size, c))
+            strip_of.append(np.full(units.size, j))
+            point_of.append(np.array(ids, int))
     if unsolved:
         c, p, strip_name = min(unsolved)
         name = p if point_ids is None else point_ids[p]
@@ -215,10 +211,15 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                           "ground solution with the start radar constants (nominal, sweep delay fitted to the nadir "
                           "returns) and the navigation: its slant range is shorter than the flying height, off the "
                           f"film's ground range{more}; correct or remove its measurement")
-    if not point_key:
+    if not point_unknown:
         raise SeaiceError("no image measurement gives a ground point: nothing to adjust")
+    point_key = list(point_unknown)
     observations = {k: np.concatenate(v) for k, v in tables.items()}
     observations["point"] = observations["point"].astype(int)
+    # each point starts at the mean of its measurements' ground points
+    sums = np.zeros((len(point_key), 2))
+    np.add.at(sums, observations["point"], np.concatenate(starts))
+    counts = np.bincount(observations["point"], minlength=len(point_key))
     nadir = {k: np.concatenate(v) if v else np.zeros((0, 2) if k == "index" else 0) for k, v in nadir.items()}
     control = {"point": [], "xy": [], "sigma": []}
     for c, coverage in enumerate(coverages):
@@ -230,8 +231,8 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                 control["sigma"].append(sigma)
     control = {"point": np.array(control["point"], int), "xy": np.array(control["xy"], float).reshape(-1, 2),
                "sigma": np.array(control["sigma"], float)}
-    return BlockLayout(names, np.array(prior, float), np.array(sums) / np.array(counts)[:, None], point_key,
-                    strip_slices, observations, nadir, control, np.array(coverage_of), np.array(strip_of),
-                    np.array(point_of), q or 0, start_theta)
+    return BlockLayout(names, np.array(prior, float), sums / counts[:, None], point_key, strip_slices, observations,
+                       nadir, control, np.concatenate(coverage_of), np.concatenate(strip_of),
+                       np.concatenate(point_of), q or 0, start_theta)
 
 

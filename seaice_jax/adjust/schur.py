@@ -61,6 +61,21 @@ def _pairs(point):
                                                                     np.zeros(0, int))
 
 
+def _cross_pairs(point, cross_points):
+    """``(s, 3)`` rows ``(o, o′, g)``: every coupling row o of point a and o′ of point b of each requested pair
+    ``g = (a, b)``."""
+    order = np.argsort(point, kind="stable")
+    ordered = point[order]
+    lo_a, hi_a = np.searchsorted(ordered, cross_points[:, 0]), np.searchsorted(ordered, cross_points[:, 0], "right")
+    lo_b, hi_b = np.searchsorted(ordered, cross_points[:, 1]), np.searchsorted(ordered, cross_points[:, 1], "right")
+    count_a, count_b = hi_a - lo_a, hi_b - lo_b
+    group = np.repeat(np.arange(cross_points.shape[0]), count_a * count_b)
+    within = np.arange(group.size) - np.repeat(np.cumsum(count_a * count_b) - count_a * count_b, count_a * count_b)
+    first = order[lo_a[group] + within // np.maximum(count_b[group], 1)]
+    second = order[lo_b[group] + within % np.maximum(count_b[group], 1)]
+    return np.stack([first, second, group], axis=1).astype(int)
+
+
 def schur_layout(problem: Problem, cross_points=None) -> SchurLayout:
     """The pair tables of ``problem`` (host side; sizes padded to buckets so similar problems share a compile)."""
     names, points, flats = [], [], []
@@ -82,12 +97,7 @@ def schur_layout(problem: Problem, cross_points=None) -> SchurLayout:
     first, second = first[keep], second[keep]
     size = bucket(first.size)
     cross_points = np.zeros((0, 2), int) if cross_points is None else np.asarray(cross_points, int).reshape(-1, 2)
-    rows_of = {}
-    for o, p in enumerate(point):
-        rows_of.setdefault(int(p), []).append(o)
-    cross = [(o, o2, g) for g, (a, b) in enumerate(cross_points) for o in rows_of.get(int(a), [])
-             for o2 in rows_of.get(int(b), [])]
-    cross = np.array(cross, int).reshape(-1, 3)
+    cross = _cross_pairs(point, cross_points)
     cross_size = bucket(cross.shape[0])
     # the requested pairs padded with (-1, -1) too (their blocks are computed and dropped by the engine's solve)
     requested = pad(cross_points, bucket(cross_points.shape[0]), -1)

@@ -99,22 +99,28 @@ def moving_average(times, values, window: float = 180.0, order: int = 2, weighti
     if weighting not in ("flat", "inverse_cube"):
         raise SeaiceError(f"weighting must be 'flat' or 'inverse_cube', got {weighting!r}")
     spacing = float(np.median(np.diff(times))) if times.size > 1 else 1.0
-    smoothed = np.empty_like(values)
-    derivative = np.empty_like(values)
-    for i, t in enumerate(times):
-        near = np.abs(times - t) <= window / 2 + 1e-9
-        dt = times[near] - t
-        if near.sum() <= order:
-            raise SeaiceError(f"navigation record {i}: only {int(near.sum())} records within the {window:g}-s window "
-                              f"for a degree-{order} moving polynomial")
-        if weighting == "flat":
-            weight = np.ones_like(dt)
-        else:
-            weight = 1.0 / np.maximum(np.abs(dt), spacing / 2) ** 3
-        design = np.vander(dt, order + 1, increasing=True) * np.sqrt(weight)[:, None]
-        coefficients, *_ = np.linalg.lstsq(design, values[near] * np.sqrt(weight)[:, None], rcond=None)
-        smoothed[i] = coefficients[0]
-        derivative[i] = coefficients[1] if order >= 1 else np.nan
+    half = window / 2
+    # the records within each point's window are contiguous (times increase): gather them as (point, record) rows
+    first = np.searchsorted(times, times - half - 1e-9, side="left")
+    count = np.searchsorted(times, times + half + 1e-9, side="right") - first
+    if np.any(count <= order):
+        i = int(np.argmax(count <= order))
+        raise SeaiceError(f"navigation record {i}: only {int(count[i])} records within the {window:g}-s window "
+                          f"for a degree-{order} moving polynomial")
+    offset = np.arange(count.max())
+    inside = offset[None, :] < count[:, None]
+    record = np.minimum(first[:, None] + offset[None, :], times.size - 1)
+    dt = times[record] - times[:, None]
+    weight = inside * (1.0 if weighting == "flat" else 1.0 / np.maximum(np.abs(dt), spacing / 2) ** 3)
+    # every point's weighted fit at once, in time scaled by the half window (the powers stay O(1)), by the SVD of
+    # each whitened design matrix
+    root = np.sqrt(weight)
+    design = (dt / half)[:, :, None] ** np.arange(order + 1) * root[:, :, None]
+    u, s, vt = np.linalg.svd(design, full_matrices=False)
+    inverse = np.swapaxes(vt, 1, 2) / np.where(s > s[:, :1] * 1e-13, s, np.inf)[:, None, :]
+    coefficients = np.einsum("nab,ncb,nck->nak", inverse, u, root[:, :, None] * values[record], optimize=True)
+    smoothed = coefficients[:, 0]
+    derivative = coefficients[:, 1] / half if order >= 1 else np.full_like(values, np.nan)
     return smoothed, derivative
 
 

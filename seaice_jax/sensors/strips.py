@@ -140,5 +140,18 @@ def image_to_ground(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
 
 def nadir_altitudes(strip: StripRecord):
     """Altimeter heights ``(n,)`` (m) at the imaging times of a strip's nadir returns (eq. A1, then the records)."""
-    times = imaging_time(strip.nadir_x, strip.mark_x, strip.mark_times)
-    return np.interp(np.asarray(times), strip.record_times, strip.record_altitudes)
+    n = strip.nadir_x.size
+    if n == 0:
+        return np.zeros(0)
+    # padded to a bucket: one compilation serves strips of similar counts of returns and marks
+    marks = bucket(strip.mark_x.size)
+    step = np.arange(1, marks - strip.mark_x.size + 1)  # padding marks continue the last interval's rate
+    rate = (strip.mark_times[-1] - strip.mark_times[-2]) / (strip.mark_x[-1] - strip.mark_x[-2])
+    mark_x = np.concatenate([strip.mark_x, strip.mark_x[-1] + step])
+    mark_times = np.concatenate([strip.mark_times, strip.mark_times[-1] + rate * step])
+    times = _imaging_times(jnp.asarray(pad(strip.nadir_x, bucket(n), strip.nadir_x[0])), jnp.asarray(mark_x),
+                           jnp.asarray(mark_times))
+    return np.interp(np.asarray(times)[:n], strip.record_times, strip.record_altitudes)
+
+
+_imaging_times = jax.jit(imaging_time)
