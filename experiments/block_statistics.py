@@ -8,7 +8,10 @@ navigation scope (flight, strip). If the stochastic model is right:
 * σ̂0 ≈ 1 (mean within 1 ± 0.03), and the global test (χ², α = 0.05) rejects 2-10 % of the blocks;
 * the w-test (α = 0.001) flags about 0.1 % of the image observations in each coordinate (target ≤ 2α);
 * the predicted σ of the adjusted positions (stations, all points) and of the drift vectors matches the
-  empirical error: √mean(e²/σ²) per map coordinate within 10 % of 1;
+  empirical error: √mean(e²/σ²) per map coordinate within 10 % of 1 — judged conditioned on the stations'
+  satellite fixes (:func:`normalized`): they shift each coverage as a whole, and the plain ratios of 40 blocks follow
+  their luck (seeds 1000-1039: the fixes alone give 0.87 for the drift vectors, whose error is the difference of
+  two coverages' fixes);
 * a planted 5 mm image blunder and a 1 km control-point blunder are flagged and named.
 
 It also measures the navigation noise that reaches the geometry (records with only their white noise): the RMS
@@ -16,7 +19,7 @@ error of the interpolated velocity between records and the along-track displacem
 today's filter (:func:`~seaice_jax.sensors.strips.strip_navigation`) and with the moving polynomial's positions
 and derivatives interpolated by a Hermite cubic (the filter before issue 12).
 
-Run: ``python experiments/block_statistics.py`` (30 blocks per scope, about 20 minutes on 2 cores) or
+Run: ``python experiments/block_statistics.py`` (30 blocks per scope, about 10 minutes on 2 cores) or
 ``--realizations 3`` for a quick look; ``--image-sigma``, ``--sweep-delay-prior``, ``--range-scale-prior``,
 ``--filter-window`` try other options. Writes ``experiments/results/block_statistics.md``.
 """
@@ -24,6 +27,7 @@ Run: ``python experiments/block_statistics.py`` (30 blocks per scope, about 20 m
 import argparse
 import sys
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -44,6 +48,8 @@ RESULTS = Path(__file__).parent / "results" / "block_statistics.md"
 SCOPES = ("flight", "strip")
 W_ALPHA = 0.001
 GLOBAL_ALPHA = 0.05
+MIN_REGRESSION_BLOCKS = 10
+"""Blocks below which the conditioned ratios are not formed (β is regressed over the blocks)."""
 
 
 def scenario(seed):
@@ -53,19 +59,62 @@ def scenario(seed):
 
 def normalized(blocks, resamples=2000, seed=0):
     """√mean(e²/σ²) per coordinate ``(2,)`` over all rows with finite values of the ``blocks`` (a list of
-    ``(errors (n, 2), covariances (n, 2, 2))``), and its 95 % interval ``(2, 2)`` by resampling whole blocks (the
-    errors within a block share its navigation and radar errors: the blocks, not the points, are independent)."""
-    sums, counts = [], []
-    for errors, covariances in blocks:
+    ``(errors (n, 2), covariances (n, 2, 2), control variate (2,))``) and its 95 % interval ``(2, 2)`` by
+    resampling whole blocks (the errors within a block share its navigation and radar errors and the stations'
+    fixes: the blocks, not the points, are independent); then the same conditioned on the stations' fixes, and
+    its interval (NaN without a control variate).
+
+    The stations' satellite fixes (100 m, three per coverage) shift a whole coverage: they dominate a block's
+    errors, so each block gives about one sample per coordinate of them, and 40 blocks place the ratio only to
+    about ±0.15 (the drift vectors least well: their error holds the difference of two coverages' fixes). The
+    control variate ``c`` of a block (:func:`_control_variate`) is the normalized square of that fix error, whose
+    expectation is exactly 1 by the simulation's construction: mean(e²/σ²) − β (mean(c) − 1), β regressed over
+    the blocks, has the same expectation and a 2-3 times narrower interval (NaN below
+    :data:`MIN_REGRESSION_BLOCKS` blocks; a resample whose blocks are all one gives no β and no interval value)."""
+    sums, counts, variates = [], [], []
+    for errors, covariances, variate in blocks:
         errors, covariances = np.asarray(errors).reshape(-1, 2), np.asarray(covariances).reshape(-1, 2, 2)
         sigma2 = np.diagonal(covariances, axis1=1, axis2=2)
         ok = np.isfinite(errors).all(axis=1) & np.isfinite(sigma2).all(axis=1)
         sums.append(np.sum(errors[ok] ** 2 / sigma2[ok], axis=0))
         counts.append(ok.sum())
-    sums, counts = np.array(sums), np.array(counts, float)
+        variates.append(variate)
+    sums, counts, variates = np.array(sums), np.array(counts, float), np.array(variates, float)
+
+    def estimates(pick):
+        s, n, c = sums[pick], counts[pick][..., None], variates[pick]
+        raw = s.sum(axis=-2) / n.sum(axis=-2)
+        # β: weighted regression of the blocks' mean(e²/σ²) on their control variate (weights: rows per block)
+        mean_c = (n * c).sum(axis=-2) / n.sum(axis=-2)
+        spread = (n * (c - mean_c[..., None, :]) ** 2).sum(axis=-2)
+        beta = (n * (c - mean_c[..., None, :]) * (s / n - raw[..., None, :])).sum(axis=-2) / spread
+        return np.sqrt(raw), np.sqrt(np.maximum(raw - beta * (mean_c - 1.0), 0.0))
+
     pick = np.random.default_rng(seed).integers(0, len(blocks), (resamples, len(blocks)))
-    resampled = np.sqrt(sums[pick].sum(axis=1) / counts[pick].sum(axis=1)[:, None])
-    return np.sqrt(sums.sum(axis=0) / counts.sum()), np.quantile(resampled, [0.025, 0.975], axis=0).T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        raw, conditioned = estimates(np.arange(len(blocks)))
+        raw_resampled, conditioned_resampled = estimates(pick)
+    if len(blocks) < MIN_REGRESSION_BLOCKS:
+        conditioned, conditioned_resampled = np.full(2, np.nan), np.full((resamples, 2), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: no control variate
+        conditioned_interval = np.nanquantile(conditioned_resampled, [0.025, 0.975], axis=0).T
+    return raw, np.quantile(raw_resampled, [0.025, 0.975], axis=0).T, conditioned, conditioned_interval
+
+
+def _control_variate(sim):
+    """Per coverage ``(coverages, 2)`` the stations' mean fix error (known position − truth, m) over its σ: a
+    standard normal per coordinate by the simulation's construction (NaN without control points)."""
+    out = []
+    for coverage, truth in zip(sim.coverages, sim.truth, strict=True):
+        stations = np.array(sorted(coverage.control), int)
+        if not stations.size:
+            out.append(np.full(2, np.nan))
+            continue
+        fixes = np.array([coverage.control[i][:2] for i in stations])
+        sigma = np.array([coverage.control[i][2] for i in stations])
+        out.append((fixes - truth.positions[stations]).mean(axis=0) / (np.sqrt(np.sum(sigma**2)) / stations.size))
+    return np.array(out)
 
 
 def block_statistics(seed, options):
@@ -78,6 +127,9 @@ def block_statistics(seed, options):
     stations = np.nonzero(sim.kinds == "station")[0]
     errors = {"stations": [], "points": [], "drift": []}
     covariances = {"stations": [], "points": [], "drift": []}
+    fix = _control_variate(sim)
+    variates = {"stations": np.mean(fix**2, axis=0), "points": np.mean(fix**2, axis=0),
+                "drift": np.mean((fix[1:] - fix[:-1]) ** 2 / 2.0, axis=0)}
     for c, truth in enumerate(sim.truth):
         e = result.positions[c] - truth.positions
         errors["points"].append(e)
@@ -90,7 +142,7 @@ def block_statistics(seed, options):
     return dict(sigma0=result.sigma0, dof=result.degrees_of_freedom, accepted=bool(accepted),
                 alarms=alarms.sum(axis=0), observations=alarms.shape[0],
                 errors={k: np.concatenate(v) for k, v in errors.items()},
-                covariances={k: np.concatenate(v) for k, v in covariances.items()})
+                covariances={k: np.concatenate(v) for k, v in covariances.items()}, variates=variates)
 
 
 def _named(result, point, coverage, strip=None, component=None, group="image"):
@@ -186,13 +238,21 @@ def summarize(rows):
     sigma0 = np.array([r["sigma0"] for r in rows])
     alarms = np.sum([r["alarms"] for r in rows], axis=0)
     total = sum(r["observations"] for r in rows)
-    ratio, interval = {}, {}
+    ratio, interval, conditioned, conditioned_interval = {}, {}, {}, {}
     for k in rows[0]["errors"]:
-        ratio[k], interval[k] = normalized([(r["errors"][k], r["covariances"][k]) for r in rows])
+        ratio[k], interval[k], conditioned[k], conditioned_interval[k] = normalized(
+            [(r["errors"][k], r["covariances"][k], r["variates"][k]) for r in rows])
     return dict(count=len(rows), sigma0=sigma0.mean(), sigma0_sd=sigma0.std(ddof=1) if len(rows) > 1 else np.nan,
                 sigma0_min=sigma0.min(), sigma0_max=sigma0.max(), dof=np.mean([r["dof"] for r in rows]),
                 rejected=1.0 - np.mean([r["accepted"] for r in rows]), false_alarms=alarms / total, ratio=ratio,
-                interval=interval)
+                interval=interval, conditioned=conditioned, conditioned_interval=conditioned_interval,
+                fixes={k: np.sqrt(np.mean([r["variates"][k] for r in rows], axis=0)) for k in ratio})
+
+
+def _judged(summary):
+    """The conditioned σ ratios of a scope (the plain ones where there is no control variate)."""
+    return np.array([np.where(np.isfinite(summary["conditioned"][k]), summary["conditioned"][k], summary["ratio"][k])
+                     for k in summary["ratio"]])
 
 
 def _check(value, low, high):
@@ -223,20 +283,31 @@ def report(summaries, blunders, navigation, options, args, elapsed):
         row(f"w-test alarms {name}, α = 0.001", [f"{s['false_alarms'][k]:.4f}" for s in summaries.values()],
             "≤ 0.002")
     for key, name in (("stations", "stations"), ("points", "all points"), ("drift", "drift vectors")):
-        row(f"√mean(e²/σ²) {name} x (95 % interval)", [
-            f"{s['ratio'][key][0]:.2f} ({s['interval'][key][0, 0]:.2f}-{s['interval'][key][0, 1]:.2f})"
-            for s in summaries.values()], "0.9-1.1")
-        row(f"√mean(e²/σ²) {name} y (95 % interval)", [
-            f"{s['ratio'][key][1]:.2f} ({s['interval'][key][1, 0]:.2f}-{s['interval'][key][1, 1]:.2f})"
-            for s in summaries.values()], "0.9-1.1")
+        for k, axis in enumerate("xy"):
+            row(f"√mean(e²/σ²) {name} {axis} (95 % interval)", [
+                f"{s['ratio'][key][k]:.2f} ({s['interval'][key][k, 0]:.2f}-{s['interval'][key][k, 1]:.2f})"
+                for s in summaries.values()], "0.9-1.1")
+        for k, axis in enumerate("xy"):
+            row(f"… conditioned on the stations' fixes, {axis}", [
+                f"{s['conditioned'][key][k]:.2f} ({s['conditioned_interval'][key][k, 0]:.2f}-"
+                f"{s['conditioned_interval'][key][k, 1]:.2f})" for s in summaries.values()], "0.9-1.1")
+        row(f"the stations' fixes alone ({'difference of two coverages' if key == 'drift' else 'per coverage'})"
+            ", x, y", [f"{s['fixes'][key][0]:.2f}, {s['fixes'][key][1]:.2f}" for s in summaries.values()],
+            "1 (chance)")
     lines += ["", "Targets met: " + "; ".join(
         f"{scope}: σ̂0 {_check(s['sigma0'], 0.97, 1.03)}, global test {_check(s['rejected'], 0.02, 0.10)}, "
         f"w-test {_check(max(s['false_alarms']), 0.0, 2 * W_ALPHA)}, σ "
-        f"{_check(float(np.min(list(s['ratio'].values()))), 0.9, 1.1)}"
-        f"{'' if np.max(list(s['ratio'].values())) <= 1.1 else ' (NO: above 1.1)'}"
+        f"{_check(float(np.min(_judged(s))), 0.9, 1.1)}"
+        f"{'' if np.max(_judged(s)) <= 1.1 else ' (NO: above 1.1)'} (conditioned ratios where formed)"
         for scope, s in summaries.items()), "",
               "Map x is along track and y across (the strips fly east and west); e = adjusted − true position, σ "
-              "its predicted (a priori) standard deviation; the 95 % intervals resample whole blocks.", ""]
+              "its predicted (a priori) standard deviation; the 95 % intervals resample whole blocks. The "
+              "stations' satellite fixes shift each coverage as a whole and dominate the errors: a block gives "
+              "about one sample of them per coordinate, so the plain ratios of 40 blocks are known to about "
+              "±0.15 and follow the luck of the seeds' fixes (their row 'alone', expectation 1). Conditioned: "
+              "mean(e²/σ²) − β (mean(c) − 1), c that row's per-block square (expectation exactly 1 in the "
+              "simulation), β regressed over the blocks: the same expectation, a 2-3 times narrower interval; the "
+              "targets are judged on it.", ""]
     if blunders:
         lines += ["## Planted blunders", "",
                   "| scope | seed | 5 mm image blunder: where; rank among flagged (0 = worst), w, estimated error | "
