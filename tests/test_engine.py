@@ -5,11 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from seaice_jax.adjust import dense, trust_region
 from seaice_jax.adjust.engine import INSEPARABLE, EngineOptions, solve
 from seaice_jax.adjust.lsq import Observations, make_solver
 from seaice_jax.adjust.problem import Problem, ResidualBlock
 from seaice_jax.adjust.quality import critical_value
 from seaice_jax.adjust.variance import robust_adjustment, variance_components
+from seaice_jax.errors import SeaiceError
 
 
 def _image_point(theta, point, row):
@@ -236,3 +238,67 @@ def test_under_vmap_each_lane_stops_on_its_own():
     assert bool(jnp.all(both.converged))
     assert int(both.steps[0]) == int(alone.steps) < int(both.steps[1])
     np.testing.assert_allclose(both.parameters["b"], float(alone.parameters["b"]), rtol=1e-9)
+
+
+@pytest.mark.parametrize("fraction", [0.3, 1e-4, 2.0])
+def test_the_trust_region_step_has_the_radius_and_solves_the_damped_problem(rng, fraction):
+    """Independent truth: numpy's least squares on the augmented system [J; √λ D] Δ = −[e; 0] (the damped problem),
+    at the λ the secular equation gives; the step's scaled norm is the radius (or, for a radius beyond the
+    Gauss-Newton step, λ = 0 and the step is Gauss-Newton's)."""
+    jacobian = rng.normal(size=(40, 5)) * np.array([1e-3, 1.0, 1e2, 1e4, 3.0])
+    jacobian[:, 4] += 1e-4 * jacobian[:, 1]  # a nearly dependent pair
+    residuals = rng.normal(size=40) * 10.0
+    scale = np.linalg.norm(jacobian, axis=0) * rng.uniform(1.0, 2.0, 5)  # a running maximum: ≥ the column norms
+    factors = dense.Factors(jnp.asarray(jacobian), jnp.asarray(scale))
+    projected = factors.left.T @ jnp.asarray(residuals)
+    newton = np.linalg.lstsq(jacobian, -residuals, rcond=None)[0]
+    radius = fraction * np.linalg.norm(scale * newton)
+    damping = float(trust_region.damping_for_radius(factors.singular, projected, factors.kept, radius))
+    step = np.asarray(factors.step(jnp.asarray(residuals), damping))
+    if fraction >= 1.0:
+        assert damping == 0.0
+        np.testing.assert_allclose(step, newton, rtol=1e-9)
+        return
+    assert damping > 0
+    assert np.linalg.norm(scale * step) == pytest.approx(radius, rel=1e-10)
+    assert float(trust_region.step_norm(factors.singular, projected, factors.kept, damping)) == pytest.approx(
+        radius, rel=1e-10)
+    augmented = np.vstack([jacobian, np.sqrt(damping) * np.diag(scale)])
+    expected = np.linalg.lstsq(augmented, -np.concatenate([residuals, np.zeros(5)]), rcond=None)[0]
+    np.testing.assert_allclose(step, expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
+
+
+def _saturating(theta, _, row):
+    """b1 (1 − exp(−b2 x)) − y: rises with x for every b1 > 0, b2 > 0."""
+    return jnp.atleast_1d(theta[0] * (1.0 - jnp.exp(-theta[1] * row["x"])) - row["y"])
+
+
+@pytest.mark.parametrize("strategy", ["damped", "trust-region"])
+def test_a_minimum_at_infinity_is_refused_naming_the_parameter(strategy):
+    """Falling data under a model that can only rise: the best fit is the constant b1 = mean(y), reached only as
+    b2 → ∞ (ill posed, whatever the start). The engine must name b2, not return a finite b2 as an answer."""
+    x = np.arange(1.0, 11.0)
+    block = ResidualBlock(_saturating, {"x": jnp.asarray(x), "y": jnp.asarray(200.0 - x)}, jnp.ones((10, 1)),
+                          jnp.broadcast_to(jnp.arange(2), (10, 2)))
+    result = solve(Problem({"y": block}, jnp.array([1.0, 1.0])),
+                   EngineOptions("dense", max_steps=500, strategy=strategy), ("b1", "b2"))
+    assert result.undetermined_parameters() == ["b2"]
+    assert float(result.parameters["theta"][0]) == pytest.approx(np.mean(200.0 - x), rel=1e-9)
+
+
+def test_the_trust_region_reaches_the_damped_loops_minimum_in_as_few_steps(rng):
+    problem, _, _ = small_block(rng)
+    damped = solve(problem, EngineOptions("dense"))
+    region = solve(problem, EngineOptions("dense", strategy="trust-region"))
+    assert bool(region.converged) and int(region.steps) <= int(damped.steps)
+    np.testing.assert_allclose(region.parameters["points"], damped.parameters["points"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(region.cofactor, damped.cofactor, rtol=1e-8, atol=0)
+
+
+@pytest.mark.parametrize("settings", [{"backend": "schur", "strategy": "trust-region"},
+                                      {"monotone": False, "strategy": "trust-region"},
+                                      {"strategy": "dogleg"}, {"backend": "sparse"},
+                                      {"strategy": "trust-region", "initial_radius": 0.0}])
+def test_engine_options_refuse_what_they_cannot_do(settings):
+    with pytest.raises(SeaiceError, match="EngineOptions"):
+        EngineOptions(**settings)

@@ -3,7 +3,10 @@
 A :class:`~seaice_jax.adjust.problem.Problem` (residual blocks over global unknowns and points) goes through
 one nonlinear loop, a damped Gauss-Newton (Levenberg-Marquardt: λ = 0 while steps decrease the square sum,
 raised tenfold on a failed step, lowered tenfold on a good one) in a single ``lax.while_loop``, so under ``vmap``
-each lane stops when it has converged and no lane pays for another's damping. The linear algebra is a backend:
+each lane stops when it has converged and no lane pays for another's damping. ``strategy="trust-region"`` (dense
+backend) bounds the column-scaled step by a radius instead (:mod:`.trust_region`, MINPACK's scheme): slower from
+some far starts a plain Gauss-Newton step would have handled, it solves the hard starts the damped loop runs away
+from or creeps along (all of NIST's StRD suite from both starts). The linear algebra is a backend:
 ``"dense"`` (QR of the column-scaled Jacobian and SVD of its triangle, :mod:`.dense`) or ``"schur"`` (points
 eliminated, reduced system by Cholesky, :mod:`.schur`); :func:`choose_backend` picks by the size.
 
@@ -26,11 +29,13 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, PyTree
 
 from seaice_jax._shapes import bucket, pad
-from seaice_jax.adjust import dense, schur
+from seaice_jax.adjust import dense, schur, trust_region
 from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, square_sum
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
+from seaice_jax.errors import SeaiceError
 
 BACKENDS = ("dense", "schur")
+STRATEGIES = ("damped", "trust-region")
 DENSE_LIMIT = 400
 """Unknowns up to which :func:`choose_backend` takes the dense backend (its cost grows with their cube)."""
 MAX_DAMPING = 1e12
@@ -64,6 +69,13 @@ class EngineOptions:
             for a linear model in one step. Nielsen's τ = 1e-3 keeps a far start (NIST's MGH17 start 1) from leaping
             towards a limit at infinity; but damped steps shrink slowly along weakly determined directions, where
             the step-size test may then stop a few 1e-10 short of the minimum.
+        strategy: ``"damped"`` (the default: Levenberg-Marquardt with Nielsen's λ update) or ``"trust-region"``
+            (dense backend, monotone: the step bounded by a radius in the column-scaled unknowns, λ solved for
+            it, the radius following the gain ratio: MINPACK's scheme, :mod:`.trust_region`). The trust region
+            solves far starts the damped loop runs away from or creeps along (NIST's BoxBOD and MGH10 start 1).
+        initial_radius: the trust region's first radius in units of ‖D x₀‖ (D: the column norms; where x₀ = 0
+            the first step is Gauss-Newton's). 1 (scipy's ``trf``) keeps the first step within the start's own
+            size; MINPACK's 100 lets the first Gauss-Newton step through almost always (and BoxBOD start 1 off).
     """
 
     backend: str = "dense"
@@ -73,6 +85,19 @@ class EngineOptions:
     decrease_tolerance: float = 1e-10
     monotone: bool = True
     initial_damping: float = 0.0
+    strategy: str = "damped"
+    initial_radius: float = 1.0
+
+    def __post_init__(self):
+        if self.backend not in BACKENDS:
+            raise SeaiceError(f"EngineOptions.backend={self.backend!r}: choose one of {BACKENDS}")
+        if self.strategy not in STRATEGIES:
+            raise SeaiceError(f"EngineOptions.strategy={self.strategy!r}: choose one of {STRATEGIES}")
+        if self.strategy == "trust-region" and (self.backend != "dense" or not self.monotone):
+            raise SeaiceError("EngineOptions.strategy='trust-region' needs backend='dense' and monotone=True (the "
+                              "radius follows the decrease of the square sum the step predicts)")
+        if not self.initial_radius > 0:
+            raise SeaiceError(f"EngineOptions.initial_radius={self.initial_radius}: must be > 0")
 
 
 def choose_backend(problem: Problem) -> str:
@@ -223,11 +248,22 @@ def _linear_step(problem: Problem, layout, backend: str, theta, points, damping,
     return step_theta, step_points, cost, gain, gain if gauss_newton is None else gauss_newton, scale
 
 
+def _small(options: EngineOptions, step, value):
+    """Every |step| ≤ rtol·|value| + atol."""
+    return jnp.all(jnp.abs(step) <= options.relative_tolerance * jnp.abs(value) + options.absolute_tolerance)
+
+
+def _flat(options: EngineOptions, cost, gauss_newton, dof):
+    """The Gauss-Newton step is below the tolerance in a posteriori σ, or the decrease it predicts is at the
+    roundoff of the square sum itself (a step that small cannot be taken): the minimum."""
+    sigma0_squared = jnp.maximum(cost / jnp.maximum(dof, 1.0), 1e-300)
+    return gauss_newton <= jnp.maximum(options.decrease_tolerance**2 * sigma0_squared, ROUNDOFF * cost)
+
+
 def _iterate(problem: Problem, layout, options: EngineOptions, dof):
     """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton)."""
-
-    def small(step, value):
-        return jnp.all(jnp.abs(step) <= options.relative_tolerance * jnp.abs(value) + options.absolute_tolerance)
+    if options.strategy == "trust-region":
+        return _iterate_trust_region(problem, options, dof)
 
     def body(state):
         theta, points, damping, growth, scale, steps, _, _ = state
@@ -235,12 +271,8 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
             problem, layout, options.backend, theta, points, damping, scale)
         trial = square_sum(problem, theta + step_theta, points + step_points)
         accept = jnp.isfinite(trial) & ((trial < cost) | (not options.monotone))
-        tiny = small(step_theta, theta) & small(step_points, points)
-        sigma0_squared = jnp.maximum(cost / jnp.maximum(dof, 1.0), 1e-300)
-        # the Gauss-Newton step is below the tolerance in a posteriori σ, or the decrease it predicts is at the
-        # roundoff of the square sum itself (a step that small cannot be taken): the minimum
-        flat = gauss_newton <= jnp.maximum(options.decrease_tolerance**2 * sigma0_squared, ROUNDOFF * cost)
-        converged = jnp.isfinite(cost) & (tiny | flat)
+        tiny = _small(options, step_theta, theta) & _small(options, step_points, points)
+        converged = jnp.isfinite(cost) & (tiny | _flat(options, cost, gauss_newton, dof))
         theta = jnp.where(accept, theta + step_theta, theta)
         points = jnp.where(accept, points + step_points, points)
         ratio = (cost - trial) / jnp.maximum(gain, 1e-300)
@@ -260,6 +292,49 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
              jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
     theta, points, _, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
     return theta, points, steps, converged
+
+
+def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
+    """The dense backend's step bounded by a radius in the column-scaled unknowns (:mod:`.trust_region`):
+    converged when the Gauss-Newton step is below the tolerances, or the region has shrunk to where no step can
+    move an unknown beyond them."""
+    n = problem.start.shape[0]
+
+    def body(state):
+        x, radius, scale, steps, _, _ = state
+        theta, points = x[:n], x[n:].reshape(problem.points.shape)
+        linear = linearize_all(problem, theta, points)
+        cost = sum(jnp.sum(lin.e**2) for lin in linear.values())
+        residuals, jacobian = dense.assemble(problem, linear)
+        scale = jnp.maximum(scale, dense.column_norms(jacobian))  # Moré's scaling, as the damped loop's
+        factors = dense.Factors(jacobian, scale)
+        projected = factors.left.T @ residuals
+        radius = jnp.where(steps == 0, trust_region.initial_radius(
+            jnp.linalg.norm(factors.scale * x), options.initial_radius,
+            trust_region.step_norm(factors.singular, projected, factors.kept, 0.0)), radius)
+        damping = trust_region.damping_for_radius(factors.singular, projected, factors.kept, radius)
+        step = factors.step(residuals, damping)
+        norm = trust_region.step_norm(factors.singular, projected, factors.kept, damping)
+        step_points = step[n:].reshape(points.shape)
+        trial = square_sum(problem, theta + step[:n], points + step_points)
+        gain = predicted_decrease(problem, linear, step[:n], step_points)
+        accept = jnp.isfinite(trial) & (trial < cost)
+        ratio = jnp.where(jnp.isfinite(trial), (cost - trial) / jnp.maximum(gain, 1e-300), 0.0)
+        radius = trust_region.updated_radius(radius, ratio, norm, damping)
+        tiny = _small(options, factors.step(residuals, 0.0), x)
+        collapsed = _small(options, radius / factors.scale, x)
+        converged = jnp.isfinite(cost) & (tiny | collapsed | _flat(options, cost, factors.gauss_newton_decrease(
+            residuals), dof))
+        x = jnp.where(accept, x + step, x)
+        return x, radius, scale, steps + 1, converged | ~jnp.isfinite(cost), converged
+
+    def running(state):
+        return ~state[4] & (state[3] < options.max_steps)
+
+    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), jnp.ones(()), jnp.zeros(problem.unknowns),
+             jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
+    x, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
+    return x[:n], x[n:].reshape(problem.points.shape), steps, converged
 
 
 def _statistics(problem: Problem, layout, backend: str, theta, points, cross_points):
