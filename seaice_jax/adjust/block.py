@@ -321,10 +321,15 @@ def _image_function(radius: float):
 
     def residual(theta, point, row):
         """J⁻¹ (point − rectified): the point's image position minus the measured one, film mm ``(2,)``."""
-        jacobian = jax.jacfwd(_rectified, argnums=3)(theta, row, radius, jnp.zeros(2))
+        def shifted(shift):
+            value = _rectified(theta, row, radius, shift)
+            return value, value
+
+        # one pass gives the map position and ∂map/∂(Δt, Δy)
+        jacobian, rectified = jax.jacfwd(shifted, has_aux=True)(jnp.zeros(2))
         jacobian = jacobian * jnp.stack([row["time_per_mm"], jnp.ones(())])[None, :]
         to_image = jax.lax.stop_gradient(jnp.linalg.inv(jacobian))
-        return to_image @ (point - _rectified(theta, row, radius, jnp.zeros(2)))
+        return to_image @ (point - rectified)
 
     return residual
 
