@@ -68,7 +68,7 @@ def scipy_solve(scenario, options):
     rows, columns = np.concatenate(rows), np.concatenate(columns)
     sparsity = scipy.sparse.coo_matrix((np.ones(rows.size), (rows, columns)),
                                        shape=(offset, size + points[0] * points[1])).tocsr()
-    start = np.concatenate([np.zeros(size), np.asarray(problem.points).ravel()])
+    start = np.concatenate([np.asarray(problem.start), np.asarray(problem.points).ravel()])  # the block's own start
     np.asarray(residuals(jnp.asarray(start)))  # compile outside the timing
     fit, seconds = timed(scipy.optimize.least_squares, lambda x: np.asarray(residuals(jnp.asarray(x))), start,
                          jac_sparsity=sparsity, method="trf", x_scale="jac")

@@ -2,6 +2,7 @@
 prior is whitened right, and a noise-free sequence adjusted through these residuals returns the true models."""
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -66,6 +67,25 @@ def test_groups_cover_every_observation_once(truth):
     assert np.any(np.bincount(ties.tie) == 3), "the lattice should give ties seen in all three images"
     assert obs.n_ties == ties.latitude.size
     np.testing.assert_array_equal(np.asarray(global_index(jnp.array([0, 2]))), [[0, 1, 2, 3, 4], [10, 11, 12, 13, 14]])
+
+
+def test_reference_image_of_each_tie(truth):
+    """The image of each tie's reference observation: the table's ``reference`` flags, or without them the tie's
+    first observation."""
+    models, ties, _ = truth
+    moved = np.zeros(ties.tie.size, bool)
+    last = ties.tie.size - 1 - np.unique(ties.tie[::-1], return_index=True)[1]  # each tie's last observation
+    moved[last] = True
+    expected = np.full(ties.latitude.size, -1)
+    expected[ties.tie[last]] = ties.image[last]
+    flagged = sequence_observations(models, replace(ties, reference=moved))
+    np.testing.assert_array_equal(np.asarray(flagged.reference_image), expected)
+    first = np.unique(ties.tie, return_index=True)[1]
+    assert not np.array_equal(ties.image[first], ties.image[last[np.argsort(ties.tie[last])]])
+    table = SimpleNamespace(**{key: getattr(ties, key) for key in (  # a tie table without reference flags
+        "image", "tie", "pixel", "scan", "sigma_pixel", "sigma_scan", "latitude", "longitude")})
+    plain = sequence_observations(models, table)
+    np.testing.assert_array_equal(np.asarray(plain.reference_image)[ties.tie[first]], ties.image[first])
 
 
 def test_residuals_vanish_at_the_truth(truth):

@@ -146,12 +146,15 @@ class SequenceObservations(eqx.Module):
             image (their orbits, directions and sizes are fixed; :meth:`models_at` puts θ into them).
         reference: ``(n_ties, 2)`` φ0, λ0 radians of each tie's chart (:func:`tie_ground`); the tie unknowns start
             at 0.
+        reference_image: ``(n_ties,)`` the image whose observation of each tie the others were matched against
+            (the table's ``reference`` observation; without that field, the tie's first observation).
     """
 
     groups: dict
     start: Float[Array, "n 5"]
     models: tuple
     reference: Float[Array, "t 2"]
+    reference_image: Int[Array, " t"]
 
     @property
     def n_images(self) -> int:
@@ -208,6 +211,7 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
     groups: dict[str, ObservationGroup] = {}
     layouts = _layouts(models)
     reference = jnp.zeros((0, 2))
+    reference_image = np.zeros(0, int)
     if ties is not None:
         image, tie = np.asarray(ties.image, int), np.asarray(ties.tie, int)
         reference = jnp.stack([jnp.asarray(ties.latitude, float), jnp.asarray(ties.longitude, float)], 1)
@@ -215,6 +219,7 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
             raise SeaiceError(f"tie observations: image index out of range 0..{n_images - 1}")
         if tie.size and (tie.min() < 0 or tie.max() >= reference.shape[0]):
             raise SeaiceError(f"tie observations: tie index out of range 0..{reference.shape[0] - 1}")
+        reference_image = _reference_images(ties, image, tie, reference.shape[0])
         sigma = np.stack([np.asarray(ties.sigma_pixel, float), np.asarray(ties.sigma_scan, float)], 1)
         bad = np.nonzero(~(sigma > 0).all(axis=1))[0]
         if bad.size:
@@ -247,7 +252,21 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
     if prior_covariance is not None:
         groups["prior"] = _prior_group(start if prior_mean is None else jnp.asarray(prior_mean, float),
                                        jnp.asarray(prior_covariance, float), n_images)
-    return SequenceObservations(groups, start, models, reference)
+    return SequenceObservations(groups, start, models, reference, jnp.asarray(reference_image))
+
+
+def _reference_images(ties, image, tie, n_ties) -> np.ndarray:
+    """``(n_ties,)`` the image of each tie's reference observation (``ties.reference`` if the table has it, else
+    the tie's first observation; −1 for a tie without observations)."""
+    flags = getattr(ties, "reference", None)
+    if flags is None:
+        first = np.zeros(tie.size, bool)
+        first[np.unique(tie, return_index=True)[1]] = True
+        flags = first
+    out = np.full(n_ties, -1)
+    chosen = np.nonzero(np.asarray(flags, bool))[0]
+    out[tie[chosen]] = image[chosen]
+    return out
 
 
 def _prior_group(mean, covariance, n_images) -> ObservationGroup:
