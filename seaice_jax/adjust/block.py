@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import bucket, pad
+from seaice_jax._small_linalg import inverse_2x2
 from seaice_jax.adjust import engine
 from seaice_jax.adjust.block_layout import BlockLayout, layout_block
 from seaice_jax.adjust.block_options import DENSE_LIMIT, SOLVERS, BlockOptions
@@ -213,7 +214,7 @@ def _image_function(radius: float):
         # one pass gives the map position and ∂map/∂(Δt, Δy)
         jacobian, rectified = jax.jacfwd(shifted, has_aux=True)(jnp.zeros(2))
         jacobian = jacobian * jnp.stack([row["time_per_mm"], jnp.ones(())])[None, :]
-        to_image = jax.lax.stop_gradient(jnp.linalg.inv(jacobian))
+        to_image = jax.lax.stop_gradient(inverse_2x2(jacobian))
         return to_image @ (point - rectified)
 
     return residual

@@ -79,11 +79,14 @@ def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight
     scan_design = jnp.stack([jnp.ones_like(scan), scan - 1.0], 1) * weight[:, None]
     pixel_design = jnp.stack([jnp.ones_like(pixel), pixel - 1.0], 1) * weight[:, None]
 
+    # the designs do not depend on the node: their pseudo-inverses once, outside vmap (no batched LAPACK kernel)
+    scan_inverse, pixel_inverse = jnp.linalg.pinv(scan_design), jnp.linalg.pinv(pixel_design)
+
     def misfit(node):
         eta, beta = orbit_coordinates(orbit, node, latitude, longitude, branch)
         psi = orbit.scanner_angle_from_central(beta)
-        eta_line = jnp.linalg.lstsq(scan_design, eta * weight)[0]
-        psi_line = jnp.linalg.lstsq(pixel_design, psi * weight)[0]
+        eta_line = scan_inverse @ (eta * weight)
+        psi_line = pixel_inverse @ (psi * weight)
         cost = jnp.sum((scan_design @ eta_line - eta * weight) ** 2) + jnp.sum(
             (pixel_design @ psi_line - psi * weight) ** 2)
         on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < jnp.pi / 2)

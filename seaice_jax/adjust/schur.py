@@ -23,6 +23,7 @@ from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, Float, Int
 
 from seaice_jax._shapes import bucket, pad
+from seaice_jax._small_linalg import symmetric_inverse_2x2
 from seaice_jax.adjust.problem import Problem
 
 
@@ -162,22 +163,15 @@ def normal_equations(problem: Problem, linear: dict):
 
 
 def _point_inverse(point_normal, damping):
-    """V_p⁻¹ of every point's (damped) ``d × d`` block ``(P, d, d)``; NaN where a block is not positive definite.
-
-    Plane points (d = 2, every problem of the project) in closed form: elementwise, no batched LAPACK call — XLA's
-    CPU runtime runs batched LAPACK kernels in parallel on its own thread pool, and two of them at once on a 2-thread
-    pool wait on each other for ever (a 100-strip block hung so on a 2-core machine)."""
+    """V_p⁻¹ of every point's (damped) ``d × d`` block ``(P, d, d)``; NaN where a block is not positive definite
+    (plane points, d = 2, in closed form: :mod:`seaice_jax._small_linalg`)."""
     d = point_normal.shape[-1]
     eye = jnp.eye(d)
     diagonal = jnp.diagonal(point_normal, axis1=1, axis2=2)
     unobserved = jnp.sum(diagonal, axis=1) <= 0  # padding points: no rows, no step
     damped = point_normal + (damping * diagonal)[:, :, None] * eye[None] + unobserved[:, None, None] * eye[None]
     if d == 2:
-        a, b, c = damped[:, 0, 0], 0.5 * (damped[:, 0, 1] + damped[:, 1, 0]), damped[:, 1, 1]
-        determinant = a * c - b * b
-        positive = (a > 0) & (determinant > 0)
-        inverse = jnp.stack([jnp.stack([c, -b], -1), jnp.stack([-b, a], -1)], -2) / determinant[:, None, None]
-        return jnp.where(positive[:, None, None], inverse, jnp.nan)
+        return symmetric_inverse_2x2(damped)
     factor = jnp.linalg.cholesky(damped)
     return jax.vmap(lambda f: cho_solve((f, True), eye))(factor)
 
