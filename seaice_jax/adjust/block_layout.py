@@ -81,10 +81,11 @@ def _strip_observations(strip, x, y, options, plane, radius, flight_span, sweep_
                 sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
 
 
-def _sweep_delay_starts(coverages, strip_slices, size):
+def _sweep_delay_starts(coverages, strip_slices, altitudes, size):
     """Start values ``(size,)`` of the global unknowns: zero, except each sweep-delay correction Δc, which starts at
     the value that fits the nadir returns of its strips with the nominal range scale (eq. A3 in image space:
-    Δc = mean(h_n / f0 − y_n − c0)); zero where its strips have no nadir returns.
+    Δc = mean(h_n / f0 − y_n − c0)); zero where its strips have no nadir returns. ``altitudes[c][j]``: the
+    altimeter heights at strip j's nadir returns (:func:`~seaice_jax.sensors.strips.nadir_altitudes`).
 
     From the nominal constants a sweep-delay error of a few tenths of a mm puts the near-range edge of every strip
     inside the flying height (no ground point); started here, the block starts where the nadir returns put the
@@ -94,7 +95,7 @@ def _sweep_delay_starts(coverages, strip_slices, size):
     for c, j, _, radar, _ in strip_slices:
         strip = coverages[c].strips[j]
         if strip.nadir_y.size:
-            offsets.setdefault(radar[0], []).append(nadir_altitudes(strip) / strip.range_scale - strip.nadir_y
+            offsets.setdefault(radar[0], []).append(altitudes[c][j] / strip.range_scale - strip.nadir_y
                                                     - strip.sweep_delay)
     theta = np.zeros(size)
     for index, values in offsets.items():
@@ -162,7 +163,8 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                           else np.inf]
                 shared_radar = radar
             strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
-    start_theta = _sweep_delay_starts(coverages, strip_slices, len(names))
+    altitudes = [[nadir_altitudes(strip) for strip in coverage.strips] for coverage in coverages]
+    start_theta = _sweep_delay_starts(coverages, strip_slices, altitudes, len(names))
     point_unknown, starts = {}, []
     tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
                               "north_rate", "east_rate", "y",
@@ -181,7 +183,7 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                 nadir["y"].append(strip.nadir_y)
                 nadir["sweep_delay"].append(np.full(strip.nadir_y.size, strip.sweep_delay))
                 nadir["range_scale"].append(np.full(strip.nadir_y.size, strip.range_scale))
-                nadir["altitude"].append(nadir_altitudes(strip))
+                nadir["altitude"].append(altitudes[c][j])
                 nadir["coverage"].append(np.full(strip.nadir_y.size, c))
                 nadir["strip"].append(np.full(strip.nadir_y.size, j))
             if rows.size == 0:

@@ -59,6 +59,7 @@ from seaice_jax._shapes import bucket
 from seaice_jax.adjust import engine
 from seaice_jax.adjust.problem import Problem, ResidualBlock, linearize, weights
 from seaice_jax.adjust.quality import DEFAULT_ALPHA
+from seaice_jax.adjust.schur import normal_equations
 from seaice_jax.adjust.sequence_model import (
     UNKNOWNS_PER_IMAGE,
     SequenceObservations,
@@ -315,15 +316,10 @@ def correlated_tie_covariance(problem: Problem, result: engine.Adjustment, cofac
     size = cofactor.shape[0]
     if correlation == 1:
         return np.zeros((size, size))
-    other = np.zeros((size, size))
-    for block in problem.blocks.values():
-        if block.point_index is not None:
-            continue
-        j_theta = np.asarray(_linearize(block, result.parameters["theta"], result.parameters["points"]).theta)
-        index = np.asarray(block.global_index)
-        for c in range(j_theta.shape[1]):
-            rows = j_theta[:, c, :]
-            np.add.at(other, (index[:, :, None], index[:, None, :]), rows[:, :, None] * rows[:, None, :])
+    theta, points = result.parameters["theta"], result.parameters["points"]
+    others = Problem({k: b for k, b in problem.blocks.items() if b.point_index is None}, theta, points)
+    linear = {k: _linearize(b, theta, points) for k, b in others.blocks.items()}
+    other = np.asarray(normal_equations(others, linear)[0])  # N_o: control points, priors
     return scale * (correlation - 1.0) * (cofactor - cofactor @ other @ cofactor)
 
 

@@ -41,7 +41,7 @@ def damping_for_radius(singular, projected, kept, radius, iterations: int = SECU
 
     def norm_and_slope(damping):
         denominator = s**2 + damping
-        norm = jnp.sqrt(jnp.sum((weighted / denominator) ** 2))
+        norm = step_norm(singular, projected, kept, damping)
         slope = -jnp.sum(weighted**2 / denominator**3) / jnp.maximum(norm, 1e-300)
         return norm, slope
 
