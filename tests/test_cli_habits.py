@@ -154,3 +154,15 @@ def test_long_commands_say_each_stage_unless_quiet(tmp_path, capsys):
     assert "absent.toml: file not found" in error
     assert main(["block", str(project), "--out", str(tmp_path / "out"), "-q"]) == 2
     assert "reading" not in capsys.readouterr().err
+
+
+def test_the_block_commands_defaults_are_the_librarys():
+    """`seaice --help` must not import JAX, so the parser spells out `BlockOptions`' defaults: they must agree."""
+    from seaice_jax.adjust.block import BlockOptions
+
+    args = build_parser().parse_args(["block", "project.toml", "--out", "out"])
+    defaults = BlockOptions()
+    for name in ("navigation_model", "navigation_scope", "knot_spacing", "radar_constants", "take_off_time",
+                 "variance_components", "robust"):
+        assert getattr(args, name) == getattr(defaults, name), name
+    assert tuple(args.image_sigma) == tuple(defaults.image_sigma)
