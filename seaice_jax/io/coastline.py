@@ -13,6 +13,7 @@ Longitudes are degrees east in [-180, 180], latitudes degrees north.
 """
 
 import functools
+import importlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,8 +24,9 @@ from seaice_jax.errors import SeaiceError
 @functools.cache
 def _world():
     """``(polygons, tree)``: every GSHHG land polygon (shapely, lon/lat degrees) and an STRtree over them."""
-    import roaring_landmask
     import shapely
+
+    roaring_landmask = importlib.import_module("roaring_landmask")  # a compiled module without type stubs
 
     world = shapely.from_wkb(roaring_landmask.Shapes.wkb(roaring_landmask.LandmaskProvider.Gshhg))
     polygons = np.asarray(world.geoms)

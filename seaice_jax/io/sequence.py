@@ -162,16 +162,21 @@ def _given_model(entry: dict, label: str, orbit: Orbit, direction: str, shape) -
     return ScanModel(**unknowns, orbit=orbit, direction=direction, n_pixels=shape[1], n_scans=shape[0])
 
 
-def _read_image(entry: dict, k: int, path: Path, epoch: str, allow_outside: bool = False) -> SequenceImage:
-    """One ``[[image]]`` table: its time, pixels, orbit, and control points or a given scan model."""
+def _name_and_time(entry: dict, k: int, path: Path, epoch: str) -> tuple[str, float]:
+    """The name and time (s since ``epoch``) of image ``k``'s ``[[image]]`` table."""
     if not isinstance(entry, dict):
         raise SeaiceError(f"{path}: image {k + 1} must be an [[image]] table")
     name = str(entry.get("name", f"image {k + 1}"))
-    label = f"{path}: image {name!r}"
     try:
-        time = (parse_time(entry["time"]) - parse_time(epoch)).total_seconds()
+        return name, (parse_time(entry["time"]) - parse_time(epoch)).total_seconds()
     except (KeyError, ValueError):
-        raise SeaiceError(f"{label}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
+        raise SeaiceError(f"{path}: image {name!r}: time {entry.get('time')!r} is not an ISO 8601 date-time") from None
+
+
+def _read_image(entry: dict, k: int, path: Path, epoch: str, allow_outside: bool = False) -> SequenceImage:
+    """One ``[[image]]`` table: its time, pixels, orbit, and control points or a given scan model."""
+    name, time = _name_and_time(entry, k, path, epoch)
+    label = f"{path}: image {name!r}"
     if "file" not in entry:
         raise SeaiceError(f"{label}: no file")
     image_path = project_file(path.parent, entry["file"], label, "file", allow_outside)
@@ -244,6 +249,59 @@ def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> Seque
         SeaiceError: naming the file, table, key or line at fault.
     """
     path = Path(path)
+    epoch, spec, grid, entries = _project_header(path)
+    stack = 8 * len(entries) * grid.shape[0] * grid.shape[1]
+    if stack > MEMORY_BUDGET:
+        raise SeaiceError(f"{path}: {len(entries)} images on a {grid.shape[0]} x {grid.shape[1]} grid need "
+                          f"{stack / 2**30:.1f} GiB, more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+    images, names = [], set()
+    for k, entry in enumerate(entries):
+        image = _read_image(entry, k, path, epoch, allow_outside)
+        if image.name in names:
+            raise SeaiceError(f"{path}: image {image.name!r}: duplicate image name")
+        names.add(image.name)
+        images.append(image)
+    if not images:
+        raise SeaiceError(f"{path}: no [[image]] entries")
+    times = [im.time for im in images]
+    if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+        raise SeaiceError(f"{path}: image times must increase in the order listed")
+    return SequenceProject(path, epoch, grid, dict(spec), tuple(images))
+
+
+def read_sequence_outline(path: str | os.PathLike) -> tuple[SequenceProject, tuple[dict, ...]]:
+    """A sequence project checked as :func:`read_sequence` checks it without reading its images' files, for an
+    archive whose images are read one at a time (:func:`read_sequence_image`, e.g. by Dask workers): no memory
+    budget for the stack.
+
+    Returns:
+        ``(project, entries)``: the project with no ``images`` and its ``[[image]]`` tables (names unique, times
+        increasing).
+    """
+    path = Path(path)
+    epoch, spec, grid, entries = _project_header(path)
+    if not entries:
+        raise SeaiceError(f"{path}: no [[image]] entries")
+    names, times = set(), []
+    for k, entry in enumerate(entries):
+        name, time = _name_and_time(entry, k, path, epoch)
+        if name in names:
+            raise SeaiceError(f"{path}: image {name!r}: duplicate image name")
+        names.add(name)
+        times.append(time)
+    if any(b <= a for a, b in zip(times, times[1:], strict=False)):
+        raise SeaiceError(f"{path}: image times must increase in the order listed")
+    return SequenceProject(path, epoch, grid, dict(spec), ()), tuple(entries)
+
+
+def read_sequence_image(project: SequenceProject, entry: dict, k: int, allow_outside: bool = False) -> SequenceImage:
+    """Image ``k`` of ``project`` (:func:`read_sequence_outline`) from its ``[[image]]`` table ``entry``, read and
+    checked as :func:`read_sequence` reads each image."""
+    return _read_image(entry, k, project.path, project.epoch, allow_outside)
+
+
+def _project_header(path: Path) -> tuple[str, dict, MapGrid, list]:
+    """``(epoch, grid spec, grid, [[image]] tables)`` of a project file, checked."""
     check_input_file(path)
     try:
         document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
@@ -262,23 +320,7 @@ def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> Seque
     entries = document.get("image", [])
     if not isinstance(entries, list):
         raise SeaiceError(f"{path}: images must be [[image]] tables")
-    stack = 8 * len(entries) * grid.shape[0] * grid.shape[1]
-    if stack > MEMORY_BUDGET:
-        raise SeaiceError(f"{path}: {len(entries)} images on a {grid.shape[0]} x {grid.shape[1]} grid need "
-                          f"{stack / 2**30:.1f} GiB, more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
-    images, names = [], set()
-    for k, entry in enumerate(entries):
-        image = _read_image(entry, k, path, epoch, allow_outside)
-        if image.name in names:
-            raise SeaiceError(f"{path}: image {image.name!r}: duplicate image name")
-        names.add(image.name)
-        images.append(image)
-    if not images:
-        raise SeaiceError(f"{path}: no [[image]] entries")
-    times = [im.time for im in images]
-    if any(b <= a for a, b in zip(times, times[1:], strict=False)):
-        raise SeaiceError(f"{path}: image times must increase in the order listed")
-    return SequenceProject(path, epoch, grid, dict(spec), tuple(images))
+    return epoch, spec, grid, entries
 
 
 def write_sequence(sequence, out_dir: str | os.PathLike, grid_spec: dict, satellite: str = "NOAA-7") -> Path:
