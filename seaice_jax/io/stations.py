@@ -19,7 +19,7 @@ import numpy as np
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, bare_column
-from seaice_jax.io.tables import check_input_file
+from seaice_jax.io.tables import check_input_file, finite_number
 from seaice_jax.sensors.control import ControlPoints
 
 
@@ -112,14 +112,7 @@ def write_agrid(path: str | os.PathLike, stations) -> Path:
 
 
 def _number(row, column, where):
-    text = (row.get(column) or "").strip()
-    try:
-        value = float(text)
-    except ValueError:
-        raise SeaiceError(f"{where}: column {column!r} value {text!r} is not a number") from None
-    if not np.isfinite(value):
-        raise SeaiceError(f"{where}: column {column!r} is not finite")
-    return value
+    return finite_number((row.get(column) or "").strip(), column, where)
 
 
 def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None = None) -> list[Measurement]:

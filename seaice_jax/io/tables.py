@@ -62,6 +62,17 @@ def read_table(path: Path, columns, numeric=None) -> list[tuple[int, dict]]:
         raise SeaiceError(f"{path}: not a readable CSV table ({error})") from None
 
 
+def finite_number(text: str, column: str, where: str) -> float:
+    """``text`` as a finite float, else a :class:`SeaiceError` naming ``where`` (file and line) and the column."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SeaiceError(f"{where}: column {column!r} value {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise SeaiceError(f"{where}: column {column!r} value {text!r} is not finite")
+    return value
+
+
 def _rows(path: Path, reader: csv.DictReader, columns, numeric) -> list[tuple[int, dict]]:
     header = [bare_column(c) for c in reader.fieldnames or []]
     missing = [c for c in columns if c not in header]
@@ -73,13 +84,6 @@ def _rows(path: Path, reader: csv.DictReader, columns, numeric) -> list[tuple[in
             raise SeaiceError(f"{path}, line {line}: more values than the header's {len(header)} columns")
         row = {bare_column(k): (v or "").strip() for k, v in raw.items() if k is not None}
         for column in numeric or ():
-            text = row[column]
-            try:
-                value = float(text)
-            except ValueError:
-                raise SeaiceError(f"{path}, line {line}: column {column!r} value {text!r} is not a number") from None
-            if not math.isfinite(value):
-                raise SeaiceError(f"{path}, line {line}: column {column!r} value {text!r} is not finite")
-            row[column] = value
+            row[column] = finite_number(row[column], column, f"{path}, line {line}")
         rows.append((line, row))
     return rows
