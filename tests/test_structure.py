@@ -170,6 +170,14 @@ def test_public_face_is_literal_complete_and_cheap():
     assert {"fit_scan_model", "remap", "track", "simultaneous_block", "BlockOptions", "least_squares",
             "Observations", "RankDeficiencyError", "GeometryError", "SeaiceError", "MapGrid", "Projection",
             "NavigationSpline", "Trajectory", "simulate_sequence", "nsidc_polar_stereographic"} <= set(names)
+    # the three spellings of the public face agree: the lazy table, the type checker's imports and __all__
+    import seaice_jax
+    checked = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
+    typed = {(node.module, alias.name) for node in ast.walk(checked) if isinstance(node, ast.ImportFrom)
+             for alias in node.names}
+    lazy = {(module, name) for module, names in seaice_jax._SOURCES.items() for name in names}
+    assert typed == lazy, typed ^ lazy
+    assert set(names) == {name for _, name in lazy} | {"SeaiceError", "GeometryError", "RankDeficiencyError"}
     script = ("import sys, seaice_jax as sj\n"
               "heavy = [m for m in ('cv2', 'matplotlib', 'xarray') if m in sys.modules]\n"
               "assert not heavy, heavy\n"
