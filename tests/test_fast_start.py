@@ -125,3 +125,20 @@ def test_a_second_fit_with_as_many_control_points_compiles_nothing():
     assert counter.names == []
     assert float(fit.model.ascending_node) == pytest.approx(float(truth.ascending_node), abs=np.radians(0.05))
     assert fit.rms_km < 1.5
+
+
+def test_a_northbound_fit_after_a_southbound_one_compiles_nothing():
+    """Both directions are one southbound problem inside the fit (and one compiled forward model): after a
+    southbound fit, a northbound fit of another image with as many control points compiles nothing."""
+    rng = np.random.default_rng(181)
+    south = simulate_control_points(noaa_image("south"), 6, rng, 500.0)[0]
+    truth = noaa_image("north")
+    north = simulate_control_points(truth, 6, rng, 500.0)[0]
+    first = fit_scan_model(south, truth.orbit, direction="south")
+    _ = first.rms_km, first.dlon_arcmin, first.flagged_w_test()
+    with CompileCounter() as counter:
+        fit = fit_scan_model(north, truth.orbit, direction="north")
+        _ = fit.rms_km, fit.dlon_arcmin, fit.flagged_w_test()
+    assert counter.names == []
+    assert float(fit.model.ascending_node) == pytest.approx(float(truth.ascending_node), abs=np.radians(0.05))
+    assert fit.rms_km < 1.5

@@ -128,6 +128,7 @@ def test_quality_control_redundancy_and_a_planted_blunder():
     rng = np.random.default_rng(21)
     control, lat, lon = simulate_control_points(truth, 8, rng, 500.0)
     fit = fit_scan_model(control, truth.orbit, direction="south")
+    assert fit.adjustment is not None
     total = sum(float(np.sum(r)) for r in fit.adjustment.redundancy.values())
     assert total == pytest.approx(fit.adjustment.degrees_of_freedom, abs=1e-9)
     blundered_lat = np.asarray(control.latitude).copy()
@@ -169,3 +170,65 @@ def test_bad_control_points_are_named():
         ControlPoints([1, 2, 3], [1, np.nan, 3], [0.1, 0.2, 0.3], [0, 0, 0])
     with pytest.raises(SeaiceError, match="direction must be"):
         fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="east")
+
+
+@pytest.fixture(scope="module")
+def noisy_batch():
+    """A simulated southbound image, 7 control points (σ 1 km), the solver from the fit's own start and 40 noisy
+    realizations of the known positions."""
+    truth = noaa_image("south")
+    rng = np.random.default_rng(18)
+    control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
+    solver = orbit_solver(control, fit_scan_model(control, truth.orbit, direction="south").model)
+    lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, 40)
+    return solver, control_args(control), jnp.asarray(lats), jnp.asarray(lons)
+
+
+def test_vmapped_fits_equal_the_single_fits(noisy_batch):
+    """A lane of the vmapped solver is the single solver on the same data: the estimates equal to 1e-6 of their σ
+    and the covariances to 1e-9 (the converged lanes keep their state while the others iterate)."""
+    solver, args, lats, lons = noisy_batch
+    batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args)))(lats, lons)
+    single = jax.jit(lambda a, b: solver({"latitude": a, "longitude": b}, args))
+    for k in range(0, lats.shape[0], 4):
+        one = single(lats[k], lons[k])
+        sigma = np.sqrt(np.diag(np.asarray(one.covariance)))
+        for i, name in enumerate(solver.parameter_names):
+            difference = float(getattr(batch.parameters, name)[k]) - float(getattr(one.parameters, name))
+            assert abs(difference) <= 1e-6 * sigma[i], (k, name, difference / sigma[i])
+        np.testing.assert_allclose(np.asarray(batch.covariance[k]), np.asarray(one.covariance), rtol=1e-9)
+
+
+def test_rounding_of_the_square_sum_does_not_start_the_damping(noisy_batch):
+    """Residuals of longitudes (≈ 1.5 rad) with σ ≈ 1.6e-4 rad carry 1e-12 of the square sum as rounding: a last
+    Gauss-Newton step within it is taken, not refused and damped for ten more steps. Every fit ends at a
+    stationary point (the gradient Jᵀe at rounding level) within a few steps."""
+    solver, args, lats, lons = noisy_batch
+    batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args)))(lats, lons)
+    assert bool(jnp.all(batch.converged))
+    assert int(jnp.max(batch.steps)) <= 6
+    for k in range(0, lats.shape[0], 8):
+        observed = {"latitude": lats[k], "longitude": lons[k]}
+        x = solver.flatten(jax.tree_util.tree_map(lambda leaf, k=k: leaf[k], batch.parameters))
+        jacobian = np.asarray(solver.jacobian_at(x, observed, args))
+        residuals = np.asarray(solver.residuals(x, observed, args))
+        gradient = jacobian.T @ residuals / np.linalg.norm(jacobian, axis=0)  # per column-scaled unknown
+        assert np.max(np.abs(gradient)) < 1e-7 * np.linalg.norm(residuals)
+
+
+def test_northbound_fit_is_the_direct_northbound_adjustment():
+    """The fit runs both directions as one southbound problem (the span's sign carries the direction); its
+    northbound answer, covariance included, equals the adjustment set up with the northbound model itself."""
+    truth = noaa_image("north")
+    control = simulate_control_points(truth, 8, np.random.default_rng(5), 800.0)[0]
+    fit = fit_scan_model(control, truth.orbit, direction="north")
+    assert fit.model.direction == "north" and float(fit.model.orbital_angle_span) > 0
+    assert fit.adjustment is not None
+    direct = orbit_solver(control, fit.model)({"latitude": control.latitude, "longitude": control.longitude},
+                                              control_args(control))
+    for name in direct.parameter_names:
+        assert float(getattr(fit.model, name)) == pytest.approx(float(getattr(direct.parameters, name)), rel=1e-9,
+                                                                abs=1e-11)
+    sigma = np.sqrt(np.diag(np.asarray(direct.covariance)))
+    np.testing.assert_allclose(np.asarray(fit.adjustment.covariance) / np.outer(sigma, sigma),
+                               np.asarray(direct.covariance) / np.outer(sigma, sigma), atol=1e-6)

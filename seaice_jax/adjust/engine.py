@@ -45,6 +45,11 @@ INITIAL_DAMPING = 1e-3
 """λ after the first failed Gauss-Newton step (relative to the column-scaled normal matrix, diagonal 1)."""
 ROUNDOFF = 1e-16
 """Relative decrease of the square sum below which a rejected step counts as the end (float64 roundoff)."""
+EVALUATION_NOISE = 1e-9
+"""Relative decrease of the square sum within which its evaluation's rounding can hide it: a residual computed as
+computed − observed loses ε·|observed|/σ (a longitude of 1.5 rad with σ = 1e-4 rad: 1e-12 of the square sum). A
+step whose Gauss-Newton decrease is below this is taken even if the evaluated square sum rises (by its noise), so
+that noise does not start the damping (which then creeps for many steps to a minimum already reached)."""
 RUNAWAY = 1e12
 """An unknown whose a priori σ exceeds this many times its value is undetermined (no digit of it is known)."""
 INSEPARABLE = 0.98
@@ -61,7 +66,8 @@ class EngineOptions:
         relative_tolerance, absolute_tolerance: converged when every |Δ| ≤ rtol·|x| + atol.
         decrease_tolerance: or when the step is smaller than this many a posteriori standard deviations
             (ΔᵀNΔ ≤ tol² σ̂0²).
-        monotone: accept a step only if it lowers the square sum (Levenberg-Marquardt); ``False`` takes every
+        monotone: accept a step only if it lowers the square sum (Levenberg-Marquardt; or if the decrease it
+            predicts is within the square sum's rounding, :data:`EVALUATION_NOISE`); ``False`` takes every
             Gauss-Newton step, for models whose weights follow the estimate (the radar block's image whitening),
             where the square sums before and after a step are not comparable.
         initial_damping: λ of the first step, relative to the column-scaled normal matrix (diagonal ≤ 1). 0 (the
@@ -270,7 +276,8 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
         step_theta, step_points, cost, gain, gauss_newton, scale = _linear_step(
             problem, layout, options.backend, theta, points, damping, scale)
         trial = square_sum(problem, theta + step_theta, points + step_points)
-        accept = jnp.isfinite(trial) & ((trial < cost) | (not options.monotone))
+        within_noise = gauss_newton <= EVALUATION_NOISE * cost
+        accept = jnp.isfinite(trial) & ((trial < cost) | within_noise | (not options.monotone))
         tiny = _small(options, step_theta, theta) & _small(options, step_points, points)
         converged = jnp.isfinite(cost) & (tiny | _flat(options, cost, gauss_newton, dof))
         theta = jnp.where(accept, theta + step_theta, theta)

@@ -87,8 +87,11 @@ def _system(problem: Problem):
     return dense.assemble(problem, linearize_all(problem, problem.start, problem.points))
 
 
-class Solver:
+class Solver(eqx.Module):
     """A set-up adjustment (from :func:`make_solver`): call it with observed values to adjust.
+
+    A pytree (its arrays are leaves, its structure static): the call is one compiled function per structure, so a
+    second solver of the same structure (other values of the fixed parameters, of σ) compiles nothing.
 
     Attributes:
         parameter_names: names of the free scalar unknowns.
@@ -96,20 +99,32 @@ class Solver:
         start: ``(u,)`` the free unknowns' initial values.
     """
 
+    parameter_names: tuple = eqx.field(static=True)
+    degrees_of_freedom: int = eqx.field(static=True)
+    start: Float[Array, " u"]
+    _functions: tuple = eqx.field(static=True)
+    _free: tuple = eqx.field(static=True)
+    _fixed_part: PyTree
+    _groups: tuple = eqx.field(static=True)
+    _sigmas: dict
+    _prior: tuple
+    _options: EngineOptions = eqx.field(static=True)
+    _splits: tuple = eqx.field(static=True)
+    _partner_map: np.ndarray
+
     def __init__(self, functions, parts, groups, sigmas, prior, names, dof, start, options):
-        self._observed_function, self._prior_function, self._unravel = functions
-        self._free, self._fixed_part = parts
-        self._fixed_leaves = jax.tree_util.tree_leaves(self._fixed_part)
-        self._groups, self._sigmas = groups, sigmas
-        self._prior_index, self._prior_sigma, self._prior_value = prior
+        free, self._fixed_part = parts
+        self._functions = functions
+        self._free = (jax.tree_util.tree_structure(free), tuple(jax.tree_util.tree_leaves(free)))
+        self._groups, self._sigmas, self._prior = groups, sigmas, prior
         self.parameter_names, self.degrees_of_freedom, self.start = names, dof, start
         self._options = options
         sizes = [int(np.size(sigmas[g])) for g in groups]
-        self._splits = np.cumsum(sizes)[:-1]
+        self._splits = tuple(int(k) for k in np.cumsum(sizes)[:-1])
         # the engine counts observations in sorted block order ("observations", then "prior"); results are
         # keyed by group, sorted: map the engine's flat index of a w-partner to the groups' flat order
         keys = sorted([*groups, "prior"])
-        sizes_by_key = dict(zip(groups, sizes, strict=True)) | {"prior": int(self._prior_index.size)}
+        sizes_by_key = dict(zip(groups, sizes, strict=True)) | {"prior": int(np.size(prior[0]))}
         offsets = dict(zip(keys, np.concatenate([[0], np.cumsum([sizes_by_key[k] for k in keys])])[:-1],
                            strict=True))
         engine_order = [(g, i) for g in groups for i in range(sizes_by_key[g])] + [
@@ -122,22 +137,27 @@ class Solver:
         sigma = jnp.concatenate([jnp.reshape(self._sigmas[g], -1) for g in self._groups])
         x = self.start if start is None else self.flatten(start)
         args = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[None], args)
-        row = {"fixed": [jnp.asarray(leaf)[None] for leaf in self._fixed_leaves], "args": args,
-               "observed": observed[None]}
+        observed_function, prior_function, _ = self._functions
+        row = {"fixed": [jnp.asarray(leaf)[None] for leaf in jax.tree_util.tree_leaves(self._fixed_part)],
+               "args": args, "observed": observed[None]}
         n = x.shape[0]
-        blocks = {"observations": ResidualBlock(self._observed_function, row, sigma[None],
+        blocks = {"observations": ResidualBlock(observed_function, row, sigma[None],
                                                 jnp.broadcast_to(jnp.arange(n), (1, n)))}
-        if self._prior_index.size:
-            blocks["prior"] = ResidualBlock(self._prior_function, {"value": self._prior_value},
-                                            self._prior_sigma[:, None], jnp.asarray(self._prior_index)[:, None])
+        prior_index, prior_sigma, prior_value = self._prior
+        if prior_index.size:
+            blocks["prior"] = ResidualBlock(prior_function, {"value": prior_value}, prior_sigma[:, None],
+                                            jnp.asarray(prior_index)[:, None])
         return Problem(blocks, x)
 
     def flatten(self, tree):
         """The free unknowns ``(u,)`` of a parameter pytree."""
-        return ravel_pytree(eqx.partition(tree, self._free)[0])[0]
+        return ravel_pytree(eqx.partition(tree, jax.tree_util.tree_unflatten(*self._free))[0])[0]
 
     def __call__(self, observed, args=None, start=None) -> Adjustment:
         """Adjust to ``observed`` (``{group: values}``), from ``start`` (a parameter pytree) or the initial values."""
+        return _adjust(self, observed, args, start)
+
+    def _run(self, observed, args, start) -> Adjustment:
         result = engine.solve(self.problem(observed, args, start), self._options, self.parameter_names,
                               layout=None, dof=self.degrees_of_freedom)
         return self._by_group(result)
@@ -150,7 +170,7 @@ class Solver:
             return out
 
         partner = {k: jnp.asarray(self._partner_map)[v] for k, v in split(result.w_partner, 0).items()}
-        parameters = eqx.combine(self._unravel(result.parameters["theta"]), self._fixed_part)
+        parameters = eqx.combine(self._functions[2](result.parameters["theta"]), self._fixed_part)
         return eqx.tree_at(
             lambda r: (r.parameters, r.residuals, r.redundancy, r.standardized_residuals, r.minimal_detectable_bias,
                        r.estimated_errors, r.w_correlation, r.w_partner), result,
@@ -177,6 +197,13 @@ class Solver:
         if undetermined:
             raise RankDeficiencyError(f"rank-deficient adjustment {where}: the observations cannot determine "
                                       f"{', '.join(undetermined)}", undetermined)
+
+
+@jax.jit
+def _adjust(solver: Solver, observed, args, start) -> Adjustment:
+    """:meth:`Solver.__call__` compiled: setting up the problem, the engine's solve and the results by group in one
+    function (eager, they would compile a dozen small functions of their own)."""
+    return solver._run(observed, args, start)
 
 
 def make_solver(
@@ -217,7 +244,7 @@ def make_solver(
     groups = tuple(sorted(observations))
     sigmas = {g: observations[g].sigma for g in groups}
     for g in groups:
-        if not bool(jnp.all(sigmas[g] > 0)):
+        if not bool(np.all(np.asarray(sigmas[g]) > 0)):
             raise SeaiceError(f"observation group {g!r}: every standard deviation must be > 0")
     if prior_sigma is None:
         prior_index, prior_sigma_vector, prior_vector = np.zeros(0, int), jnp.zeros(0), jnp.zeros(0)

@@ -14,6 +14,7 @@ as the 1985 operators did by hand ("order of magnitude differences in the contro
 """
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import equinox as eqx
 import jax
@@ -35,6 +36,15 @@ FREE_PARAMETERS = SCAN_UNKNOWNS
 FLAG_ARCMIN = 3.0
 """Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
 
+_distance = jax.jit(great_circle_distance)
+_critical_value = jax.jit(critical_value)
+"""Compiled once each (eager, their operations would each compile on their own)."""
+
+
+def _wrapped(angle):
+    """:func:`~seaice_jax.geometry.earth.wrap_angle` in NumPy (host-side numbers: no compilation)."""
+    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
+
 
 def free_mask(model: ScanModel):
     """The engine's ``free`` pytree for a scan model: the five unknowns free, the orbit fixed."""
@@ -51,9 +61,11 @@ def _predict(model: ScanModel, args):
 
 
 def _observations(control: ControlPoints, radius):
+    """The control points' known positions and their σ in radians (NumPy: set up outside jit, no compilation)."""
+    sigma, latitude, radius = np.asarray(control.sigma), np.asarray(control.latitude), float(radius)
     return {
-        "latitude": Observations(control.latitude, control.sigma / radius),
-        "longitude": Observations(control.longitude, control.sigma / (radius * jnp.cos(control.latitude))),
+        "latitude": Observations(latitude, sigma / radius),
+        "longitude": Observations(control.longitude, sigma / (radius * np.cos(latitude))),
     }
 
 
@@ -72,6 +84,17 @@ def control_args(control: ControlPoints):
     return control.pixel, control.scan, control.longitude
 
 
+def _line_operator(x, weight):
+    """``(2, n)``: the weighted least-squares straight line (intercept at x = 0, slope) through ``(x, y)`` is this
+    times ``y · weight`` (weights ``weight²``; closed form by centred sums: no LAPACK call). Points all at one x
+    leave the slope undetermined: 0 then (the adjustment names the unknowns it cannot determine)."""
+    squared = weight**2
+    mean = jnp.sum(squared * x) / jnp.sum(squared)
+    spread = jnp.sum(squared * (x - mean) ** 2)
+    slope = jnp.where(spread > 0, weight * (x - mean) / jnp.where(spread > 0, spread, 1.0), 0.0)
+    return jnp.stack([weight / jnp.sum(squared) - mean * slope, slope])
+
+
 @jax.jit
 def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight):
     """For each trial node: the misfit of straight lines η(scan), ψ(pixel) through the control points, and the
@@ -79,8 +102,8 @@ def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight
     scan_design = jnp.stack([jnp.ones_like(scan), scan - 1.0], 1) * weight[:, None]
     pixel_design = jnp.stack([jnp.ones_like(pixel), pixel - 1.0], 1) * weight[:, None]
 
-    # the designs do not depend on the node: their pseudo-inverses once, outside vmap (no batched LAPACK kernel)
-    scan_inverse, pixel_inverse = jnp.linalg.pinv(scan_design), jnp.linalg.pinv(pixel_design)
+    # the designs do not depend on the node: their least-squares operators once, outside vmap
+    scan_inverse, pixel_inverse = _line_operator(scan - 1.0, weight), _line_operator(pixel - 1.0, weight)
 
     def misfit(node):
         eta, beta = orbit_coordinates(orbit, node, latitude, longitude, branch)
@@ -105,17 +128,16 @@ def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_
     four unknowns and a misfit. The node with the smallest misfit, among those putting every point on the pass's
     branch (descending for ``"south"``, ascending for ``"north"``), wins.
     """
-    branch = jnp.pi if direction == "south" else 0.0
-    data = (orbit, branch, control.latitude, control.longitude, control.pixel, control.scan,
+    branch = np.pi if direction == "south" else 0.0
+    data = (orbit, jnp.asarray(branch), control.latitude, control.longitude, control.pixel, control.scan,
             orbit.radius / control.sigma)
-    step = 2 * jnp.pi / node_steps
-    nodes = jnp.arange(node_steps) * step - jnp.pi
-    costs, _, _ = _node_misfits(nodes, *data)
-    best = nodes[jnp.argmin(costs)]
-    nodes = best + jnp.linspace(-step, step, node_steps)  # same shape: no second compilation
-    costs, eta_lines, psi_lines = _node_misfits(nodes, *data)
-    k = int(jnp.argmin(costs))
-    if not np.isfinite(float(costs[k])):
+    step = 2 * np.pi / node_steps
+    nodes = np.arange(node_steps) * step - np.pi
+    costs = np.asarray(_node_misfits(jnp.asarray(nodes), *data)[0])
+    nodes = nodes[np.argmin(costs)] + np.linspace(-step, step, node_steps)  # same shape: no second compilation
+    costs, eta_lines, psi_lines = (np.asarray(a) for a in _node_misfits(jnp.asarray(nodes), *data))
+    k = int(np.argmin(costs))
+    if not np.isfinite(costs[k]):
         raise SeaiceError(f"no {direction}bound pass of this orbit puts all {len(control)} control points on one "
                           "side of the orbit's apex; try the other direction")
     sign = 1.0 if direction == "south" else -1.0
@@ -126,7 +148,7 @@ def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_
         subtrack_pixel=1.0 - psi_first / psi_rate,
         orbital_angle_first=eta_first,
         orbital_angle_span=sign * eta_rate * (n_scans - 1),
-        ascending_node=_wrap(nodes[k]),
+        ascending_node=_wrapped(nodes[k]),
         orbit=orbit, direction=direction, n_pixels=n_pixels, n_scans=n_scans,
     )
 
@@ -153,17 +175,22 @@ class OrbitFit:
 
     def computed_positions(self):
         """Latitude and longitude (radians) the model gives at the control points."""
-        return self.model.forward(self.control.pixel, self.control.scan)
+        return self._positions
+
+    @cached_property
+    def _positions(self):
+        latitude, longitude = self.model.forward(self.control.pixel, self.control.scan)
+        return np.asarray(latitude), np.asarray(longitude)
 
     @property
     def dlat_arcmin(self):
         """Computed minus known latitude at each control point, arc minutes (source 001 eq. C-8)."""
-        return np.degrees(np.asarray(self.computed_positions()[0] - self.control.latitude)) * 60.0
+        return np.degrees(self._positions[0] - np.asarray(self.control.latitude)) * 60.0
 
     @property
     def dlon_arcmin(self):
         """Computed minus known longitude at each control point, arc minutes (eq. C-9)."""
-        return np.degrees(np.asarray(_wrap(self.computed_positions()[1] - self.control.longitude))) * 60.0
+        return np.degrees(_wrapped(self._positions[1] - np.asarray(self.control.longitude))) * 60.0
 
     @property
     def dev_arcmin(self):
@@ -173,7 +200,7 @@ class OrbitFit:
             return float("nan"), float("nan")
         return float(np.std(self.dlat_arcmin, ddof=1)), float(np.std(self.dlon_arcmin, ddof=1))
 
-    @property
+    @cached_property
     def error_km(self):
         """Ground distance between computed and known position at each control point, km."""
         return check_point_errors(self.model, self.control)
@@ -199,7 +226,7 @@ class OrbitFit:
     def flagged_w_test(self, alpha=DEFAULT_ALPHA):
         """Stations whose latitude or longitude w-statistic exceeds the critical value (data snooping)."""
         w_lat, w_lon = self.w_statistics()
-        limit = float(critical_value(alpha))
+        limit = float(_critical_value(alpha))
         return (np.abs(w_lat) > limit) | (np.abs(w_lon) > limit)
 
 
@@ -255,11 +282,19 @@ def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_option
         model, evaluations = appendix_c_search(control, orbit, direction, n_pixels, n_scans, **search_options)
         return OrbitFit(model, control, method, evaluations)
     start = initial_guess(control, orbit, direction, n_pixels, n_scans)
-    adjustment = least_squares(_predict, start, _observations(control, orbit.radius), args=control_args(control),
-                               free=free_mask(start))
+    # both directions as one southbound problem (the sign of η's rate in the span): one compiled solve for both
+    southbound = start.reversed() if direction == "north" else start
+    adjustment = least_squares(_predict, southbound, _observations(control, orbit.radius), args=control_args(control),
+                               free=free_mask(southbound))
     if not bool(adjustment.converged):
         raise ComputationError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} "
                                "steps")
+    if direction == "north":
+        sign = np.array([-1.0 if name == "orbital_angle_span" else 1.0 for name in FREE_PARAMETERS])
+        flip = np.outer(sign, sign)
+        adjustment = eqx.tree_at(lambda a: (a.parameters, a.cofactor, a.covariance), adjustment,
+                                 (adjustment.parameters.reversed(), np.asarray(adjustment.cofactor) * flip,
+                                  np.asarray(adjustment.covariance) * flip))
     return OrbitFit(adjustment.parameters, control, method, int(adjustment.steps), adjustment)
 
 
@@ -269,7 +304,7 @@ def check_point_errors(model: ScanModel, check: ControlPoints):
     Check points have known positions but take no part in the fit (independent accuracy).
     """
     lat, lon = model.forward(check.pixel, check.scan)
-    return np.asarray(great_circle_distance(lat, lon, check.latitude, check.longitude, model.orbit.radius)) / 1000.0
+    return np.asarray(_distance(lat, lon, check.latitude, check.longitude, model.orbit.radius)) / 1000.0
 
 
 def control_point_deviations(model: ScanModel, control: ControlPoints):
@@ -278,7 +313,7 @@ def control_point_deviations(model: ScanModel, control: ControlPoints):
     lat, lon = (np.asarray(a) for a in model.forward(control.pixel, control.scan))
     radius = float(model.orbit.radius)
     known = np.asarray(control.latitude)
-    return (lat - known) * radius, np.asarray(_wrap(lon - np.asarray(control.longitude))) * radius * np.cos(known)
+    return (lat - known) * radius, _wrapped(lon - np.asarray(control.longitude)) * radius * np.cos(known)
 
 
 def position_uncertainty(fit: OrbitFit, pixel, scan, a_priori: bool = False):

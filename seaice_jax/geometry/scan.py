@@ -20,6 +20,7 @@ deviations to about 1 arc minute (tests/test_scan.py).
 from typing import Literal
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -170,6 +171,14 @@ class ScanModel(eqx.Module):
                    jnp.asarray(ascending_node, float), orbit, "south" if eta_span >= 0 else "north",
                    n_pixels, n_scans)
 
+    def reversed(self) -> "ScanModel":
+        """The same model described with the other direction: η₁ + s·span·f is the same line for (``"south"``,
+        span) and (``"north"``, −span), s = ±1 the direction's sign. Forward and inverse are unchanged."""
+        span = self.orbital_angle_span
+        return ScanModel(self.scanner_angle_span, self.subtrack_pixel, self.orbital_angle_first,
+                         -span if is_traced(span) else -np.asarray(span), self.ascending_node, self.orbit,
+                         "north" if self.direction == "south" else "south", self.n_pixels, self.n_scans)
+
     @property
     def _eta_sign(self):
         return _DIRECTION_SIGN[self.direction]
@@ -210,7 +219,11 @@ class ScanModel(eqx.Module):
             ``(latitude, longitude)``, each ``(...)``; longitude in (-π, π]. Outside jit, pixels whose line of
             sight misses the Earth (H > 0) raise :class:`~seaice_jax.errors.GeometryError`.
         """
-        latitude, longitude = self.forward_unchecked(pixel, scan)
+        if is_traced(self, pixel, scan):
+            return self.forward_unchecked(pixel, scan)
+        # eager: one compiled function per shape for both directions (its operations one by one would each compile)
+        southbound = self if self.direction == "south" else self.reversed()
+        latitude, longitude = _forward(southbound, jnp.asarray(pixel, float), jnp.asarray(scan, float))
         raise_where_nan(latitude, "pixel", "the scanner's line of sight misses the Earth")
         return latitude, longitude
 
@@ -255,6 +268,9 @@ class ScanModel(eqx.Module):
             self._eta_sign * self.orbital_angle_span
         )
         return pixel, scan
+
+
+_forward = jax.jit(ScanModel.forward_unchecked)
 
 
 def orbit_coordinates(orbit: Orbit, ascending_node, latitude, longitude, orbital_angle_reference, iterations=8):
