@@ -21,6 +21,7 @@ from seaice_jax.adjust.orbit_fit import (
     orbit_solver,
     propagate_position_sigma,
 )
+from seaice_jax.adjust.sharding import sharded_vmap
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import wrap_angle as _wrap
 from seaice_jax.geometry.scan import ScanModel
@@ -180,9 +181,9 @@ _BATCH = 100
 
 def _in_batches(function, realizations):
     """``vmap(function)`` over the leading axis of ``realizations`` (a pytree of arrays), ``_BATCH`` at a time
-    under one compilation: a 400-lane vmap of the solver's while_loop is many times slower per lane than four of
-    100 on the CPU."""
-    solve = jax.jit(jax.vmap(function))
+    under one compilation, each batch split over the local devices (:func:`~seaice_jax.adjust.sharding.sharded_vmap`):
+    a 400-lane vmap of the solver's while_loop is many times slower per lane than four of 100 on the CPU."""
+    solve = sharded_vmap(function)
     runs = jax.tree_util.tree_leaves(realizations)[0].shape[0]
     parts = [solve(jax.tree_util.tree_map(lambda a, k=k: jnp.asarray(a[k:k + _BATCH]), realizations))
              for k in range(0, runs, _BATCH)]

@@ -1,0 +1,327 @@
+"""Image archives on Dask (``dask.distributed``): ``seaice remap --workers N`` or ``--scheduler ADDRESS``.
+
+The single-process :func:`~seaice_jax.workflows.image_sequence.run_remap` holds every image of a sequence in memory.
+Here every image is one task: a worker reads it (:func:`~seaice_jax.io.sequence.read_sequence_image`), fits its scan
+model to its control points, remaps it, writes its GeoTIFF and its pixels into the run's staging folder and returns
+only the small rest (model, covariance block, control-point deviations). A worker's memory is thus bounded by the
+images it works on at once (one per thread), not by the archive. Dask schedules the tasks, reports progress, and runs
+again the tasks of a worker that dies. The client then streams the per-image pixels into ``remapped.npz`` one image
+at a time and writes the summary files; every file equals the single-process one (same numbers, bit for bit: the
+per-image computation is the same code on the same data).
+
+The output folder policy holds (:func:`~seaice_jax.outputs.output_folder`): the staging folder lies beside the
+target and becomes it only when the run is complete; a failed or interrupted run cancels its tasks and waits for the
+running ones to end before the staging folder is removed. With ``--scheduler`` the workers must therefore see the
+project and the target's parent folder at the same paths (a shared file system, as on a batch system's cluster).
+
+Dask is imported only here; the default single-machine path never loads it.
+"""
+
+import contextlib
+import json
+import os
+import sys
+import time
+import zipfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+from distributed import Client, LocalCluster, as_completed
+from tqdm.auto import tqdm
+
+from seaice_jax.errors import SeaiceError
+from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
+from seaice_jax.imagery.remap import remap
+from seaice_jax.io.products import write_geotiff
+from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
+from seaice_jax.outputs import check_output, output_folder
+from seaice_jax.report.figures import plot_remapped
+from seaice_jax.timefmt import time_after
+from seaice_jax.workflows.image_sequence import Rectification, Step, geolocation_sigma, rectify_images
+
+_UNKNOWNS = len(SCAN_UNKNOWNS)
+PARTS = ".parts"
+"""The staging folder's sub-folder of per-image pixels (removed before the run completes)."""
+
+
+@dataclass(frozen=True)
+class RemappedImage:
+    """What the task of one image returns (its pixels stay in the staging folder: :func:`remap_image`).
+
+    Attributes:
+        index: the image's place in the project. time: s since the project's epoch. rectification: its scan model
+        and fit. covariance: ``(5, 5)`` of the model's unknowns (zero for a given model). worker: the process id
+        that ran the task. seconds: its wall time. peak_memory: bytes, the worker process's peak resident memory
+        when the task ended (:func:`peak_memory`).
+    """
+
+    index: int
+    time: float
+    rectification: Rectification
+    covariance: np.ndarray
+    worker: int
+    seconds: float
+    peak_memory: int
+
+
+@dataclass(frozen=True)
+class ArchiveRemap:
+    """An archive remapped on Dask: everything of a :class:`~seaice_jax.workflows.image_sequence.RemappedStack` but
+    its pixels (in the written ``remapped.npz``).
+
+    Attributes:
+        project: the project (its grid; no images). images: per image, in project order. workers: the number of
+        Dask workers when the run ended.
+    """
+
+    project: SequenceProject
+    images: tuple[RemappedImage, ...]
+    workers: int
+
+    @property
+    def models(self) -> tuple[ScanModel, ...]:
+        return tuple(image.rectification.model for image in self.images)
+
+
+def peak_memory() -> int:
+    """Bytes: this process's peak resident memory (Linux ``VmHWM``; ``ru_maxrss`` elsewhere — not on Linux, where
+    it also holds the peak of the process that started this one)."""
+    status = Path("/proc/self/status")
+    if status.exists():
+        for line in status.read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * (1 if sys.platform == "darwin" else 1024)
+
+
+def _part_path(staging: Path, index: int) -> Path:
+    return staging / PARTS / f"{index:08d}.npz"
+
+
+def remap_image(project: SequenceProject, entry: dict, index: int, staging: str | os.PathLike, method: str,
+                fill: int) -> RemappedImage:
+    """The task of one image: read it, fit its scan model to its control points (or take the given one), remap it
+    into the project's grid, and write ``<name>.tif`` and its pixels (values, valid, geolocation σ) into
+    ``staging``, as :func:`~seaice_jax.workflows.image_sequence.run_remap` computes and writes each image.
+    Idempotent (files written atomically), so Dask may run it again after a worker died."""
+    start = time.perf_counter()
+    staging = Path(staging)
+    image = read_sequence_image(project, entry, index)
+    alone = SequenceProject(project.path, project.epoch, project.grid, project.grid_spec, (image,))
+    (rectification,), covariance = rectify_images(alone)
+    values, valid = remap([image.data], [rectification.model], project.grid, method=method, fill=fill)
+    sigma = geolocation_sigma((rectification.model,), covariance, project.grid)
+    write_geotiff(staging / f"{image.name}.tif", values[0], project.grid,
+                  f"{image.name} {time_after(project.epoch, image.time)}")
+    with atomic_path(_part_path(staging, index)) as temporary, open(temporary, "wb") as stream:
+        np.savez(stream, values=values[0], valid=valid[0], sigma=sigma[0])
+    return RemappedImage(index, float(image.time), rectification, covariance, os.getpid(),
+                         time.perf_counter() - start, peak_memory())
+
+
+def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` and ``--scheduler`` together, or fewer than one worker.
+
+    Raises:
+        SeaiceError: ``workers`` below 1, or both ``workers`` and ``scheduler`` given.
+    """
+    if workers is not None and scheduler is not None:
+        raise SeaiceError("--workers and --scheduler: give one (--workers starts a local cluster, --scheduler "
+                          "connects to a running one)")
+    if workers is not None and workers < 1:
+        raise SeaiceError(f"--workers must be at least 1, got {workers}")
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Client]:
+    """A Dask client: of the cluster at ``scheduler`` (an address, e.g. ``tcp://host:8786``), or of a local cluster of
+    ``workers`` processes (default: one per CPU core) with one thread each, closed when the block ends. The local
+    workers inherit the environment and share this process's persistent JAX compilation cache, if it has one (the
+    ``seaice`` command's: a second run's workers skip XLA's compilations).
+
+    Raises:
+        SeaiceError: as :func:`check_cluster_options`.
+    """
+    check_cluster_options(workers, scheduler)
+    if scheduler is not None:
+        with Client(scheduler) as client:
+            yield client
+        return
+    import jax
+
+    folder = jax.config.values.get("jax_compilation_cache_dir")
+    cache = {"JAX_COMPILATION_CACHE_DIR": str(folder), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+             "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"} if folder else {}
+    no_dashboard = cast(str, None)  # typed str; None starts no web server
+    with (LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                       dashboard_address=no_dashboard, env=cache) as cluster, Client(cluster) as client):
+        yield client
+
+
+def _npy_header(stream, dtype, shape) -> None:
+    np.lib.format.write_array_header_1_0(stream, {"descr": np.lib.format.dtype_to_descr(np.dtype(dtype)),
+                                                  "fortran_order": False, "shape": tuple(shape)})
+
+
+def _write_npz(path: Path, small: dict, stacked: dict, parts: list[Path]) -> Path:
+    """``path``, an ``.npz`` as :func:`numpy.savez_compressed` writes it: the ``small`` arrays whole, and each
+    ``stacked`` array (name -> (dtype, shape of one image)) streamed image by image from the ``parts`` files, so
+    that one image at a time is in memory."""
+    with atomic_path(path) as temporary, zipfile.ZipFile(temporary, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, value in small.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as stream:
+                np.lib.format.write_array(stream, np.asanyarray(value), allow_pickle=False)
+        for name, (dtype, shape) in stacked.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as stream:
+                _npy_header(stream, dtype, (len(parts), *shape))
+                for part in parts:
+                    with np.load(part) as data:
+                        stream.write(np.ascontiguousarray(data[name], dtype).tobytes())
+    return path
+
+
+def _model_arrays(models: Iterable[ScanModel]) -> dict:
+    """As the single-process ``remapped.npz`` stores the scan models."""
+    models = tuple(models)
+    return {"parameters": np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
+            "directions": np.array([m.direction for m in models]),
+            "shapes": np.array([[m.n_scans, m.n_pixels] for m in models]),
+            "orbits": np.array([[float(m.orbit.inclination), float(m.orbit.period), float(m.orbit.altitude),
+                                 float(m.orbit.earth_day), float(m.orbit.radius)] for m in models])}
+
+
+def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
+    """``remapped.npz`` (streamed from the per-image parts), ``rectification.csv`` and ``remapped.png``, as
+    :func:`~seaice_jax.workflows.image_sequence.write_remapped` writes them."""
+    project, images = result.project, result.images
+    names = [image.rectification.name for image in images]
+    covariance = np.zeros((_UNKNOWNS * len(images),) * 2)
+    for k, image in enumerate(images):
+        covariance[_UNKNOWNS * k:_UNKNOWNS * (k + 1), _UNKNOWNS * k:_UNKNOWNS * (k + 1)] = image.covariance
+    times = np.array([image.time for image in images])
+    parts = [_part_path(staging, image.index) for image in images]
+    shape = project.grid.shape
+    small = {"times": times, "names": np.array(names), "epoch": project.epoch, "grid": json.dumps(project.grid_spec),
+             "covariance": covariance, **_model_arrays(result.models)}
+    files = [_write_npz(staging / "remapped.npz", small, {"values": (np.float64, shape), "valid": (np.bool_, shape),
+                                                           "sigma": (np.float64, shape)}, parts)]
+    measured = [image.rectification for image in images if image.rectification.north.size]
+    if measured:
+        files.append(write_csv(staging / "rectification.csv", {
+            "image": [r.name for r in measured for _ in r.north],
+            "point": [point for r in measured for point in r.point_ids],
+            "north_km": np.concatenate([r.north for r in measured]) / 1000,
+            "east_km": np.concatenate([r.east for r in measured]) / 1000}))
+    values = np.empty((len(parts), *shape))
+    for k, part in enumerate(parts):
+        with np.load(part) as data:
+            values[k] = data["values"]
+    labels = [time_after(project.epoch, t) for t in times]
+    x, y = (np.asarray(a) / 1000 for a in project.grid.xy())
+    files.append(plot_remapped(staging / "remapped.png", values, [
+        f"{n}\n{label[:16]}" for n, label in zip(names, labels, strict=True)], [x.min(), x.max(), y.min(), y.max()],
+        projection=project.grid.projection))
+    return files
+
+
+def _executing(keys: set, dask_worker=None) -> int:
+    """How many of the tasks ``keys`` the worker (``dask_worker``, given by ``Client.run``) is running, cancelled
+    ones included."""
+    assert dask_worker is not None
+    return sum(task.key in keys for task in dask_worker.state.executing)
+
+
+def _stop(client: Client, futures, timeout: float = 60.0) -> None:
+    """Cancel the run's tasks and wait (up to ``timeout`` s) until none still runs, so that none writes into the
+    staging folder once it is removed (a running task cannot be interrupted, only forgotten)."""
+    client.cancel(futures)
+    keys = {future.key for future in futures}
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and sum(cast(dict, client.run(_executing, keys, on_error="ignore")).values()):
+        time.sleep(0.1)
+
+
+def remap_archive(client: Client, project_path: str | os.PathLike, staging: str | os.PathLike,
+                  method: str = "bilinear", fill: int = 1,
+                  progress: bool = False) -> tuple[ArchiveRemap, tuple[Path, ...]]:
+    """Remap every image of the project as one Dask task (:func:`remap_image`) into ``staging`` and write the
+    summary files there (:func:`write_archive_summary`).
+
+    Returns:
+        ``(result, files)``: the files those of :func:`~seaice_jax.workflows.image_sequence.write_remapped`, in its
+        order.
+
+    Raises:
+        SeaiceError: the project's outline is bad (before any task runs), or an image is (from its task, naming
+            its file).
+    """
+    project, entries = read_sequence_outline(project_path)
+    staging = Path(staging)
+    (staging / PARTS).mkdir(exist_ok=True)
+    count = len(entries)
+    futures = client.map(remap_image, [project] * count, entries, range(count), [str(staging)] * count,
+                         method=method, fill=fill, pure=False)
+    images: list[RemappedImage | None] = [None] * count
+    try:
+        with tqdm(total=count, desc="remap (dask)", disable=not progress, leave=False) as bar:
+            for future in as_completed(futures):
+                image = future.result()
+                images[image.index] = image
+                future.release()
+                bar.update()
+    except BaseException:  # a task's error, or an interrupt: no task may write into the staging folder after this
+        _stop(client, futures)
+        raise
+    result = ArchiveRemap(project, tuple(image for image in images if image is not None),
+                          len(client.scheduler_info(n_workers=-1)["workers"]))
+    files = [staging / f"{image.rectification.name}.tif" for image in result.images]
+    files += write_archive_summary(result, staging)
+    for part in (staging / PARTS).iterdir():
+        part.unlink()
+    (staging / PARTS).rmdir()
+    return result, tuple(files)
+
+
+def archive_report(result: ArchiveRemap, method: str, fill: int) -> str:
+    fitted = [image.rectification for image in result.images if image.rectification.control]
+    rows, columns = result.project.grid.shape
+    lines = [f"remapped {len(result.images)} images into a {rows} x {columns} grid ({method}, fill {fill}) on "
+             f"{result.workers} Dask workers"]
+    if fitted:
+        sigma0 = np.array([r.sigma0 for r in fitted])
+        lines.append(f"  {len(fitted)} scan models fitted to control points: σ̂0 median {np.median(sigma0):.2f}, "
+                     f"max {sigma0.max():.2f}")
+    seconds = np.array([image.seconds for image in result.images])
+    lines.append(f"  per image: median {np.median(seconds):.2f} s of a worker (max {seconds.max():.1f} s, with the "
+                 f"compilations); peak memory of a worker {max(i.peak_memory for i in result.images) / 2**20:.0f} MiB")
+    return "\n".join(lines)
+
+
+def run_remap_archive(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
+                      fill: int = 1, progress: bool = True, overwrite: bool = False, workers: int | None = None,
+                      scheduler: str | None = None, models_path: str | os.PathLike | None = None) -> Step[ArchiveRemap]:
+    """:func:`~seaice_jax.workflows.image_sequence.run_remap` on Dask (:func:`dask_client`: ``workers`` local
+    processes, or the cluster at ``scheduler``): the same files in ``out_dir``, written as one run (the project's
+    outline and the target are checked before the cluster starts).
+
+    Raises:
+        SeaiceError: ``models_path`` given (the models of ``seaice adjust`` are adopted by the single-process run
+            only), or as :func:`dask_client` and :func:`remap_archive`.
+    """
+    if models_path is not None:
+        raise SeaiceError("--models: the scan models of `seaice adjust` are adopted by the single-process remap; "
+                          "drop --workers/--scheduler (or --models)")
+    check_cluster_options(workers, scheduler)
+    read_sequence_outline(project_path)
+    check_output(out_dir, overwrite, inputs=(project_path,))
+    with dask_client(workers, scheduler) as client, output_folder(out_dir, overwrite,
+                                                                  inputs=(project_path,)) as folder:
+        result, files = remap_archive(client, project_path, folder.path, method, fill, progress)
+        files = folder.final(files)
+    return Step(files, archive_report(result, method, fill), result)

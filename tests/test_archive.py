@@ -1,0 +1,238 @@
+"""Archives on Dask and Monte Carlo over devices (issue 17): a local Dask cluster writes the files of the
+single-process run (same numbers, bit for bit), a worker killed during the run has its task run again and the job
+completes, and realizations sharded over two host devices equal the unsharded ones."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster
+
+from seaice_jax.cli import main
+from seaice_jax.errors import EXIT_USAGE, SeaiceError
+from seaice_jax.io.sequence import read_sequence, write_sequence
+from seaice_jax.outputs import output_folder
+from seaice_jax.simulate.satellite import simulate_sequence
+from seaice_jax.timefmt import time_after
+from seaice_jax.workflows.archive import remap_archive, run_remap_archive
+from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap
+
+IMAGES = 6
+NO_DASHBOARD = cast(str, None)  # typed str; None starts no web server
+
+
+def _archive(root: Path, images: int) -> Path:
+    """A project of ``images`` daily entries cycling through the two images of a small simulated sequence (each
+    with its control points) on an 80 x 80 grid: an archive as the remap sees it."""
+    source = write_sequence(simulate_sequence(3, n_images=2, size=64), root / "source", SIMULATED_GRID)
+    document = tomllib.loads(source.read_text())
+    grid = {**document["grid"], "shape": [80, 80]}
+    lines = [f'epoch = "{document["epoch"]}"', "[grid]", *(f"{key} = {json.dumps(value)}" for key, value in
+                                                            grid.items())]
+    for k in range(images):
+        entry = {**document["image"][k % 2], "name": f"A{k:03d}", "time": time_after(document["epoch"],
+                                                                                      86400.0 * k + 3600.0)}
+        lines += ["[[image]]", *(f"{key} = {json.dumps(value)}" for key, value in entry.items())]
+    project = root / "source" / "archive.toml"
+    project.write_text("\n".join(lines) + "\n")
+    return project
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("archive")
+    project = _archive(root, IMAGES)
+    single = run_remap(project, root / "single", progress=False)
+    return project, root / "single", single
+
+
+def _same_outputs(expected: Path, actual: Path):
+    names = sorted(p.name for p in expected.iterdir())
+    assert sorted(p.name for p in actual.iterdir()) == names
+    for name in names:
+        if name == "remapped.npz":
+            with np.load(expected / name) as a, np.load(actual / name) as b:
+                assert sorted(a.files) == sorted(b.files)
+                for key in a.files:
+                    assert a[key].dtype == b[key].dtype and a[key].shape == b[key].shape, key
+                    assert np.array_equal(a[key], b[key], equal_nan=a[key].dtype.kind == "f"), key
+        else:  # GeoTIFFs, rectification.csv and the figure: the same bytes
+            assert (expected / name).read_bytes() == (actual / name).read_bytes(), name
+
+
+def test_archive_project_is_a_sequence_of_distinct_images(archive):
+    project, _, single = archive
+    read = read_sequence(project)
+    assert len(read.images) == IMAGES and len({im.name for im in read.images}) == IMAGES
+    assert np.all(np.diff([im.time for im in read.images]) > 0)
+    assert single.result.values.shape == (IMAGES, 80, 80) and single.result.valid.mean() > 0.3
+
+
+def test_two_worker_cluster_writes_the_single_process_files(archive, tmp_path):
+    project, single_dir, _ = archive
+    with (LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=NO_DASHBOARD) as cluster,
+          Client(cluster) as client, output_folder(tmp_path / "dask") as folder):
+        result, files = remap_archive(client, project, folder.path)
+        files = folder.final(files)
+    assert result.workers == 2 and [image.index for image in result.images] == list(range(IMAGES))
+    assert [f.name for f in files] == [f"{name}.tif" for name in read_sequence_names(project)] + [
+        "remapped.npz", "rectification.csv", "remapped.png"]
+    _same_outputs(single_dir, tmp_path / "dask")
+
+
+def read_sequence_names(project):
+    return [im.name for im in read_sequence(project).images]
+
+
+def test_killed_worker_is_retried_and_the_job_completes(archive, tmp_path):
+    project, single_dir, _ = archive
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=NO_DASHBOARD)
+    with cluster, Client(cluster) as client:
+        outcome = {}
+
+        def job():
+            try:
+                outcome["step"] = run_remap_archive(project, tmp_path / "dask", progress=False,
+                                                    scheduler=str(cluster.scheduler_address))
+            except BaseException as error:  # reported below
+                outcome["error"] = error
+
+        runner = threading.Thread(target=job)
+        runner.start()
+        deadline = time.monotonic() + 120
+        busy = {}
+        while not busy and time.monotonic() < deadline:  # a worker with a task of the job in hand
+            busy = {worker: keys for worker, keys in cast(dict, client.processing()).items() if keys}
+            time.sleep(0.05)
+        assert busy, "no task started"
+        victim, tasks = next(iter(busy.items()))
+        worker_pid = cast(dict, client.run(os.getpid, workers=[victim]))[victim]
+        os.kill(worker_pid, signal.SIGKILL)  # as the kernel's out-of-memory killer would
+        runner.join(timeout=240)
+        assert not runner.is_alive(), "the job did not complete after the kill"
+        assert "error" not in outcome, outcome.get("error")
+        assert victim not in client.scheduler_info(n_workers=-1)["workers"]  # it died (its nanny started another)
+    assert tasks and outcome["step"].result.workers >= 1
+    _same_outputs(single_dir, tmp_path / "dask")
+
+
+def test_bad_archive_is_refused_before_the_cluster_starts(tmp_path):
+    (tmp_path / "p.toml").write_text('epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = [74.0, -85.0]\n'
+                                     'pixel_m = [2500.0, 2500.0]\nshape = [10, 10]\n')
+    with pytest.raises(SeaiceError, match=r"p.toml: no \[\[image\]\] entries"):
+        run_remap_archive(tmp_path / "p.toml", tmp_path / "out", workers=2)
+    with pytest.raises(SeaiceError, match="--workers must be at least 1"):
+        run_remap_archive(tmp_path / "p.toml", tmp_path / "out", workers=0)
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_image_fails_its_task_naming_the_file_and_writes_nothing(archive, tmp_path):
+    project = archive[0]
+    copy = tmp_path / "project"
+    shutil.copytree(project.parent, copy)
+    first = tomllib.loads((copy / project.name).read_text())["image"][0]["file"]
+    pixels = np.load(copy / first)
+    pixels[3, 4] = np.nan
+    np.save(copy / first, pixels)
+    text = (copy / project.name).read_text()
+    (copy / "names.toml").write_text(text.replace('name = "A001"', 'name = "A000"'))
+    with pytest.raises(SeaiceError, match=r"names.toml: image 'A000': duplicate image name"):
+        run_remap_archive(copy / "names.toml", tmp_path / "out", workers=1)  # before the cluster starts
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=NO_DASHBOARD)
+    with cluster, pytest.raises(SeaiceError, match=rf"{first}: 1 pixel values are not finite"):
+        run_remap_archive(copy / project.name, tmp_path / "out", progress=False,
+                          scheduler=str(cluster.scheduler_address))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["project"]  # no output, no staging folder left
+
+
+def test_cli_dask_options_are_checked_before_anything_runs(archive, tmp_path, capsys):
+    project = str(archive[0])
+    for options, message in ((["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers and --scheduler: "
+                              "give one"),
+                             (["--workers", "2", "--models", str(tmp_path / "m.npz")], "--models: the scan models of "
+                              "`seaice adjust` are adopted by the single-process remap")):
+        assert main(["remap", project, "--out", str(tmp_path / "out"), *options]) == EXIT_USAGE
+        assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["remap", project, "--out", str(tmp_path / "out"), "--workers", "0"])
+    assert not (tmp_path / "out").exists()
+
+
+def test_default_remap_path_does_not_import_dask():
+    code = ("import sys\nfrom seaice_jax.cli import build_parser\n"
+            "build_parser().parse_args(['remap', 'p.toml', '--out', 'o'])\n"
+            "from seaice_jax.workflows import image_sequence\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert run.stdout.strip() == "[]"
+
+
+_SHARDED = """
+import sys
+import jax, jax.numpy as jnp, numpy as np
+from seaice_jax import _config
+from seaice_jax.adjust.orbit_fit import orbit_solver
+from seaice_jax.adjust.sharding import sharded_vmap
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS
+from seaice_jax.simulate.satellite import overlapping_pair
+assert jax.local_device_count() == 2, jax.devices()
+
+def normal_solution(seed, scale):  # one linear least-squares realization (batched LAPACK under vmap)
+    design = jax.random.normal(jax.random.key(seed), (7, 3)) * scale
+    return jnp.linalg.solve(design.T @ design, design.T @ jnp.arange(7.0))
+
+seeds = jnp.arange(9)  # padded to 10 over the two devices
+linear = np.stack([np.asarray(jax.vmap(normal_solution, in_axes=(0, None))(seeds, 2.0)),
+                   np.asarray(sharded_vmap(normal_solution, in_axes=(0, None))(seeds, 2.0))])
+split = [shard.data.shape for shard in sharded_vmap(normal_solution, in_axes=(0, None))(
+    jnp.arange(10), 2.0).addressable_shards]
+
+# a Monte Carlo of the Gauss-Newton scan-model fit: noisy known positions, one fit per realization
+rng = np.random.default_rng(12)
+(first, _), (truth, _) = overlapping_pair(rng)
+primary = first.primary
+solve = orbit_solver(primary, truth)
+args = (primary.pixel, primary.scan, jnp.mean(primary.longitude))
+radius = float(first.orbit.radius)
+runs = 12
+latitude = np.asarray(primary.latitude) + rng.normal(size=(runs, len(primary))) * np.asarray(primary.sigma) / radius
+longitude = np.asarray(primary.longitude) + rng.normal(size=(runs, len(primary))) * np.asarray(primary.sigma) / (
+    radius * np.cos(np.asarray(primary.latitude)))
+fit = lambda lat, lon: solve({"latitude": lat, "longitude": lon}, args).parameters
+sharded = sharded_vmap(fit)(latitude, longitude)
+plain = jax.jit(jax.vmap(fit))  # the unsharded program, on each device's share of the realizations
+halves = [plain(latitude[k:k + runs // 2], longitude[k:k + runs // 2]) for k in (0, runs // 2)]
+
+
+def table(models):  # (unknowns, realizations)
+    return np.stack([np.concatenate([np.asarray(getattr(m, f)) for m in models]) for f in SCAN_UNKNOWNS])
+
+np.savez(sys.argv[1], linear=linear, split=np.array(split), sharded=table([sharded]), unsharded=table(halves))
+"""
+
+
+def test_sharded_realizations_equal_unsharded_on_two_host_devices(tmp_path):
+    """Two host devices need a subprocess (the device count is fixed when JAX starts). The XLA CPU runtime there
+    gets 4 threads (NPROC): two devices run their batched LAPACK kernels at once, and on a pool of fewer threads
+    than kernels plus one each waits for ever (the deadlock of seaice_jax._small_linalg's note)."""
+    out = tmp_path / "results.npz"
+    environment = {**os.environ, "NPROC": "4",
+                   "XLA_FLAGS": "--xla_force_host_platform_device_count=2 --xla_cpu_multi_thread_eigen=false"}
+    subprocess.run([sys.executable, "-c", _SHARDED, str(out)], env=environment, check=True, timeout=400)
+    with np.load(out) as results:
+        linear, split, sharded, unsharded = (results[k] for k in ("linear", "split", "sharded", "unsharded"))
+    assert linear.shape == (2, 9, 3) and np.array_equal(linear[0], linear[1])  # bit for bit
+    assert split.tolist() == [[5, 3], [5, 3]]  # each device holds half the realizations
+    assert sharded.shape == (5, 12) and np.all(np.isfinite(sharded))
+    assert np.all(np.ptp(sharded, axis=1) > 0)  # twelve different realizations, not one repeated
+    np.testing.assert_allclose(sharded, unsharded, rtol=1e-12, atol=0)
