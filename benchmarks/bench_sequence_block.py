@@ -10,6 +10,7 @@ Run: ``.venv/bin/python benchmarks/bench_sequence_block.py [--sizes 10 50 200] [
 """
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,7 +21,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import update_results  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
-from seaice_jax.adjust.sequence_block import adjust_sequence  # noqa: E402
+from seaice_jax.adjust.sequence_block import (  # noqa: E402
+    SequenceOptions,
+    adjust_sequence,
+    correlated_tie_covariance,
+    sequence_problem,
+    systematic_tie_covariance,
+)
 from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns  # noqa: E402
 from seaice_jax.imagery.ties import TiePoints  # noqa: E402
 from seaice_jax.sensors.control import ControlPoints  # noqa: E402
@@ -72,17 +79,40 @@ def synthetic_sequence(n_images: int, ties_per_image: int, rng):
     return models, start, ties, controls
 
 
+def tie_terms_time(result) -> float:
+    """Wall time (s) of the covariance's two tie error terms on ``result``'s final problem (after one call to
+    compile the linearization)."""
+    options = SequenceOptions()
+    problem = sequence_problem(result.observations)
+    sizes = np.array([(m.n_pixels, m.n_scans) for m in result.models])
+    cofactor = np.asarray(result.adjustment.cofactor)
+
+    def terms():
+        return (correlated_tie_covariance(problem, result.adjustment, cofactor, 1.0, options.tie_correlation)
+                + systematic_tie_covariance(problem, result.adjustment, result.observations.reference_image, sizes,
+                                            cofactor, options.tie_offset_factor, options.tie_gradient_factor))
+
+    terms()
+    began = time.perf_counter()
+    terms()
+    return time.perf_counter() - began
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--sizes", type=int, nargs="+", default=[10, 50, 200])
     parser.add_argument("--ties-per-image", type=int, default=100)
     args = parser.parse_args()
     rng = np.random.default_rng(0)
+    load = os.getloadavg()[0]
     lines = ["Synthetic sequences (module docstring of `benchmarks/bench_sequence_block.py`), "
-             f"{args.ties_per_image} ground points drawn per image; `adjust_sequence` (Schur backend, w-test "
-             "round included). First call: trace + compile + solve; warm: the same call again (compiled).", "",
-             "| images | ties | tie observations | first call (s) | warm call (s) | warm µs per tie | σ̂0 |",
-             "|---|---|---|---|---|---|---|"]
+             f"{args.ties_per_image} ground points drawn per image; `adjust_sequence` with its defaults (Schur "
+             "backend, w-test rounds, the ties' variance factor, the correlated and systematic tie error terms of "
+             "the covariance). First call: trace + compile + solve; warm: the same call again (compiled); of it, "
+             "the two tie error terms (`correlated_tie_covariance`, `systematic_tie_covariance`, timed apart on the "
+             "final problem).", "",
+             "| images | ties | tie observations | first call (s) | warm call (s) | warm µs per tie | tie error "
+             "terms (s) | σ̂0 |", "|---|---|---|---|---|---|---|---|"]
     for n_images in args.sizes:
         models, start, ties, controls = synthetic_sequence(n_images, args.ties_per_image, rng)
         began = time.perf_counter()
@@ -91,10 +121,13 @@ def main():
         began = time.perf_counter()
         result = adjust_sequence(start, ties, controls)
         warm = time.perf_counter() - began
+        terms = tie_terms_time(result)
         n_ties = ties.latitude.size
         lines.append(f"| {n_images} | {n_ties} | {ties.image.size} | {first:.1f} | {warm:.2f} | "
-                     f"{1e6 * warm / n_ties:.0f} | {result.sigma0:.2f} |")
+                     f"{1e6 * warm / n_ties:.0f} | {terms:.2f} | {result.sigma0:.2f} |")
         print(lines[-1], flush=True)
+    lines += ["", f"Machine: {os.cpu_count()} cores, load average {load:.1f} at the start and "
+              f"{os.getloadavg()[0]:.1f} at the end (other work sharing the cores slows every column alike)."]
     update_results("Simultaneous adjustment of image sequences (bench_sequence_block.py)", "\n".join(lines) + "\n")
     print("\n".join(lines))
 

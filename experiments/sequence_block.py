@@ -23,7 +23,7 @@ points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan 
 For the 12-point case also: the stated σ without the ties' systematic error term (``SequenceAdjustment.systematic``,
 «independent tie errors»); the matcher's error against the truth, and the part of it common to each image pair (an
 affine field per pair and axis fitted to the true tie errors: the measurement behind ``SequenceOptions``'
-``tie_offset_sigma`` and ``tie_gradient_sigma``); 5 % of the ties planted as mismatches (one observation moved 5-20
+``tie_offset_factor`` and ``tie_gradient_factor``); 5 % of the ties planted as mismatches (one observation moved 5-20
 pixels) and the adjustment repeated.
 
 Scores against the simulation's truth: the true model error over the image (ground distance between the adjusted and
@@ -127,30 +127,34 @@ def tie_errors(ties, truth):
     return errors, sigma, matched, rows
 
 
-def pair_fields(ties, errors, matched, rows, removed, size, correlation, minimum=30):
-    """The part of the true tie errors common to each image pair: per pair (reference image a, matched image b)
-    with at least ``minimum`` kept ties and per axis of b, the affine field of :func:`~seaice_jax.adjust.
-    sequence_block.systematic_tie_covariance` (offset; gradients along pixel and scan, pixels per image width,
-    about the matches' centroid) fitted by least squares to the errors. Returns ``(k, 3)`` the coefficients and
-    ``(k, 3)`` their σ due to the matches' own noise (the fit's residual variance times ``correlation``, the ties'
-    variance inflation of ``SequenceOptions``)."""
-    keep = ~np.isin(ties.tie[matched], np.asarray(sorted(removed), int))
+def pair_fields(ties, errors, matched, rows, result, size, correlation, minimum=30):
+    """The part of the true tie errors common to each image pair, as ``SequenceOptions``' pair fields model it
+    (:func:`~seaice_jax.adjust.sequence_block.systematic_tie_covariance`): per pair (reference image a, matched
+    image b) with at least ``minimum`` ties kept by ``result`` and per axis of b, the affine field (offset;
+    gradients along pixel and scan about the matches' centroid, pixels per image width) fitted by least squares to
+    the errors. Returns ``(k, 3)`` each: the coefficients², their variance due to the matches' own noise
+    (``correlation`` times the fit's residual variance), and the model's unit (Xᵀ W X)⁻¹ with W of the final σ of
+    b's observations (a priori σ times the group's estimated variance factor)."""
+    keep = ~np.isin(ties.tie[matched], np.asarray(result.removed_ties, int))
     pairs = np.stack([ties.image[rows], ties.image[matched]], 1)
-    coefficients, noise = [], []
-    for a, b in {(int(x), int(y)) for x, y in pairs[keep]}:
+    squares, noise, unit = [], [], []
+    for a, b in sorted({(int(x), int(y)) for x, y in pairs[keep]}):
         pick = np.nonzero(keep & (pairs[:, 0] == a) & (pairs[:, 1] == b))[0]
         if pick.size < minimum:
             continue
+        model = result.models[b]
+        factor = result.variance_factors.get(f"ties {model.direction} {model.n_pixels}x{model.n_scans}", 1.0)
         pixel, scan = ties.pixel[matched[pick]], ties.scan[matched[pick]]
         design = np.stack([np.ones(pick.size), (pixel - pixel.mean()) / size, (scan - scan.mean()) / size], 1)
         inverse = np.linalg.inv(design.T @ design)
-        for axis in range(2):
+        for axis, sigma in enumerate((ties.sigma_pixel, ties.sigma_scan)):
             fitted = inverse @ design.T @ errors[pick, axis]
             residual = errors[pick, axis] - design @ fitted
-            variance = correlation * float(residual @ residual) / (pick.size - 3)
-            coefficients.append(fitted)
-            noise.append(np.sqrt(variance * np.diag(inverse)))
-    return np.array(coefficients).reshape(-1, 3), np.array(noise).reshape(-1, 3)
+            whitened = design / (sigma[matched[pick]] * np.sqrt(factor))[:, None]
+            squares.append(fitted**2)
+            noise.append(correlation * float(residual @ residual) / (pick.size - 3) * np.diag(inverse))
+            unit.append(np.diag(np.linalg.inv(whitened.T @ whitened)))
+    return tuple(np.array(v).reshape(-1, 3) for v in (squares, noise, unit))
 
 
 def chained_fit(sequence, ties, removed, controls, size):
@@ -225,8 +229,7 @@ def realization(seed, images, tracked, size):
     planted_run = adjust_sequence(per_image, bad, controls)
     theta_sigma = np.sqrt(np.diag(block12.covariance)).reshape(-1, 5)
     tie_error, tie_sigma, matched, rows = tie_errors(ties, truth)
-    field, field_noise = pair_fields(ties, tie_error, matched, rows, set(block12.removed_ties), size,
-                                     SequenceOptions().tie_correlation)
+    field = pair_fields(ties, tie_error, matched, rows, block12, size, SequenceOptions().tie_correlation)
     predicted = [with_scan_unknowns(m, scan_unknowns(m) + rng.normal(0, PREDICTION_SIGMA)) for m in truth]
     predicted_ties = find_ties(data, predicted, static, [np.diag(PREDICTION_SIGMA**2)] * images)
     sweep = {count: adjust_sequence(predicted, predicted_ties, [first_controls(im.control, count)
@@ -245,7 +248,7 @@ def realization(seed, images, tracked, size):
     pack = cells[np.asarray(scene.is_pack(cells))]
     out = {"ties": [ties.n_ties, predicted_ties.n_ties], "removed": [block12.n_removed, sweep[2].n_removed],
            "tie_time": tie_time, "adjust_time": adjust_time, "tie_error": tie_error, "tie_sigma": tie_sigma,
-           "field": field, "field_noise": field_noise,
+           "field": field,
            "factors": [block12.variance_factors, sweep[2].variance_factors],
            "group_factors": [group_factors(block12), group_factors(sweep[2])],
            "planted": len(planted), "planted_found": len(planted & set(planted_run.removed_ties)),
@@ -301,8 +304,8 @@ def summary(runs, args, elapsed):
     tie_sigma = np.concatenate([r["tie_sigma"] for r in runs])
     factors = [np.array([v for r in runs for v in r["factors"][i].values()]) for i in range(2)]
     control = [np.array([r["group_factors"][i].get("control", np.nan) for r in runs]) for i in range(2)]
-    field, noise = (np.concatenate([r[key] for r in runs]) for key in ("field", "field_noise"))
-    excess = [np.sqrt(max(0.0, float(np.mean(field[:, c] ** 2 - noise[:, c] ** 2)))) for c in ([0], [1, 2])]
+    squares, noise, unit = (np.concatenate([r["field"][k] for r in runs]) for k in range(3))
+    factor = [float(np.sum(squares[:, c] - noise[:, c]) / np.sum(unit[:, c])) for c in ([0], [1, 2])]
     options = SequenceOptions()
     partial = "" if len(runs) == args.realizations else f" (of {args.realizations} planned: stopped for time)"
     lines = ["# Simultaneous adjustment of image sequences against the per-image and the chained fit", "",
@@ -318,8 +321,9 @@ def summary(runs, args, elapsed):
              "Drift error due to the models: every pack-ice cell of the 1.2 km map grid, exact (module docstring); "
              "the tracking adds about 0.35 / 0.20 km (experiments/results/lancaster_like.md, true models). "
              "Stated σ: `displacement_sigma` of the models' joint covariance without the tracking term: Q with the "
-             "ties' variance factor estimated plus the ties' systematic error term (the default: "
-             "`SequenceOptions.tie_offset_sigma`, `tie_gradient_sigma`), the same without that term («independent "
+             "ties' variance factor estimated plus the ties' correlated and systematic error terms (the defaults: "
+             "`SequenceOptions.tie_correlation`, `tie_offset_factor`, `tie_gradient_factor`), the same without "
+             "those terms («independent "
              "tie errors»); the chained and per-image fits: their own covariances. One sequence's drift errors are "
              "a few smooth error fields, not independent draws: the ratio varies from sequence to sequence and only "
              "the pooled one is a test; its 90 % interval is a bootstrap over the sequences.", "",
@@ -332,8 +336,8 @@ def summary(runs, args, elapsed):
         drift = np.concatenate([r[label]["drift"] for r in runs]) / 1000
         sigma = np.concatenate([r[label]["drift_sigma"] for r in runs]) / 1000
         ratios = [rms(r[label]["drift_sigma"]) / rms(r[label]["drift"].ravel()) for r in runs]
-        squares = np.array([[np.sum(r[label]["drift_sigma"] ** 2), np.sum(r[label]["drift"] ** 2)] for r in runs])
-        pooled = np.sqrt(squares[resample, 0].sum(1) / squares[resample, 1].sum(1))
+        sums = np.array([[np.sum(r[label]["drift_sigma"] ** 2), np.sum(r[label]["drift"] ** 2)] for r in runs])
+        pooled = np.sqrt(sums[resample, 0].sum(1) / sums[resample, 1].sum(1))
         lines.append(f"| {label} | {rms(model):.2f} | {rms(model_sigma):.2f} | {rms(drift[:, 0]):.2f} / "
                      f"{rms(drift[:, 1]):.2f} | {rms(sigma):.2f} | {rms(sigma) / rms(drift.ravel()):.2f} (90 %: "
                      f"{np.quantile(pooled, 0.05):.2f}-{np.quantile(pooled, 0.95):.2f}; per sequence "
@@ -349,11 +353,13 @@ def summary(runs, args, elapsed):
               f"after the fix: median {np.nanmedian(control[0]):.2f} (12 points), {np.nanmedian(control[1]):.2f} "
               "(2 points).", "",
               "The part of the tie errors common to an image pair (affine field per pair and axis fitted to the true "
-              f"errors, {len(field)} pair axes of ≥ 30 kept ties; pixels, gradients per image width): RMS of the "
-              f"fitted offset {rms(field[:, 0]):.4f}, gradients {rms(field[:, 1:]):.3f}; of which the matches' own "
-              f"noise (residual variance x tie_correlation) {rms(noise[:, 0]):.4f} / {rms(noise[:, 1:]):.3f}; the "
-              f"field's σ beyond that noise (moment estimate) {excess[0]:.4f} / {excess[1]:.3f} (the defaults: "
-              f"{options.tie_offset_sigma} / {options.tie_gradient_sigma}).", "",
+              f"errors, {len(squares)} pair axes of ≥ 30 kept ties; pixels, gradients per image width): RMS of the "
+              f"fitted offset {np.sqrt(np.mean(squares[:, 0])):.4f}, gradients {np.sqrt(np.mean(squares[:, 1:])):.3f}"
+              "; of which the matches' own noise (residual variance x tie_correlation) "
+              f"{np.sqrt(np.mean(noise[:, 0])):.4f} / {np.sqrt(np.mean(noise[:, 1:])):.3f}; the rest in units of "
+              "the pair's own (Xᵀ W X)⁻¹ (Σ(c² − noise) / Σ unit, the estimate of `SequenceOptions."
+              f"tie_offset_factor`, `tie_gradient_factor`): {factor[0]:.1f} / {factor[1]:.1f} (the defaults: "
+              f"{options.tie_offset_factor} / {options.tie_gradient_factor}).", "",
               f"Planted mismatches (5 % of the ties of the 12-point case, one observation each moved 5-20 pixels): "
               f"{sum(r['planted_found'] for r in runs)} of {sum(r['planted'] for r in runs)} removed; other ties "
               f"removed besides those of the clean run: {sum(r['false_removed'] for r in runs)}; largest change of "

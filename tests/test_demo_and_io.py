@@ -22,9 +22,11 @@ def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
     names = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert names == ["aidjex", "figure_3_3_stations.csv", "map.png", "orbit_fit.json", "orbit_fit_report.txt",
                      "position_sigma.png", "radar_strip.csv", "satellite_image.csv", "sequence"]
-    for name in ("film.gif", "drift/drift_IMG01_IMG02.nc", "remapped/IMG03.tif", "velocities/box_averages.png"):
+    for name in ("film.gif", "drift/drift_IMG01_IMG02.nc", "remapped/IMG03.tif", "velocities/box_averages.png",
+                 "adjusted/models.npz", "adjusted/ties.csv"):
         assert (tmp_path / "out" / "sequence" / name).stat().st_size > 0
     assert "tracked drift of the first pair against the truth" in result.summary
+    assert "simultaneous adjustment of 3 images" in result.summary
     assert (tmp_path / "out" / "aidjex" / "sequential" / "drift.geojson").exists()
     assert (tmp_path / "out" / "aidjex" / "simultaneous" / "navigation_errors.png").exists()
     assert "general drift" in result.summary and "sequential (1979)" in result.summary

@@ -31,7 +31,7 @@ LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
 START_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
 """σ of the starting models' unknowns (radians, pixel): 1-2 pixels of geolocation error."""
 POINTING = 0.3  # pixels, σ of a tie observation
-INDEPENDENT = SequenceOptions(tie_correlation=1.0, tie_offset_sigma=0.0, tie_gradient_sigma=0.0)
+INDEPENDENT = SequenceOptions(tie_correlation=1.0, tie_offset_factor=0.0, tie_gradient_factor=0.0)
 """The simulated ties here have independent errors: no terms for the matcher's correlated ones."""
 
 
@@ -195,11 +195,11 @@ def noisy_control(control: ControlPoints, rng, radius) -> ControlPoints:
     return ControlPoints(control.pixel, control.scan, latitude, longitude, control.sigma, control.ids)
 
 
-def _dense_tie_sandwich(result, correlation, offset_sigma, gradient_sigma):
+def _dense_tie_sandwich(result, correlation, factors):
     """The θ block of (AᵀA)⁻¹ Aᵀ C A (AᵀA)⁻¹ for the whitened dense design A of every unknown (θ and the tie
-    points, nothing eliminated) at the solution, C = κ I + U Σ Uᵀ on the tie rows (U: per pair (reference image,
-    matched image) and axis, the offset and the two gradients about the pair's centroid per image width, on the
-    matched observations) and I on the others."""
+    points, nothing eliminated) at the solution, C = κ I + Σ_pairs U S (UᵀU)⁻¹ S Uᵀ on the tie rows (U: per pair
+    (reference image, matched image) and axis, the whitened offset and the two gradients about the pair's centroid
+    per image width, on the matched observations; S = diag(√``factors``)) and I on the others."""
     observations = result.observations
     n_theta, n_ties = result.covariance.shape[0], observations.n_ties
     points = result.adjustment.parameters["points"][:n_ties]
@@ -224,12 +224,12 @@ def _dense_tie_sandwich(result, correlation, offset_sigma, gradient_sigma):
     design, basis = np.array(design), []
     for rows in fields.values():
         index, pixel, scan, sigma = (np.array(a) for a in zip(*rows, strict=True))
-        for values in (np.full(index.size, offset_sigma), gradient_sigma * (pixel - pixel.mean()) / SIZE,
-                       gradient_sigma * (scan - scan.mean()) / SIZE):
-            column = np.zeros(len(design))
-            column[index] = values / sigma
-            basis.append(column)
-    basis = np.array(basis).T
+        columns = np.zeros((len(design), 3))
+        columns[index] = np.stack([np.ones(index.size), (pixel - pixel.mean()) / SIZE,
+                                   (scan - scan.mean()) / SIZE], 1) / sigma[:, None]
+        scale = np.diag(np.sqrt(factors))
+        basis.append(columns @ np.linalg.cholesky(scale @ np.linalg.inv(columns.T @ columns) @ scale))
+    basis = np.concatenate(basis, axis=1)
     norms = np.linalg.norm(design, axis=0)  # columns of radians and metres: equilibrated before inverting
     norms = np.where(norms > 0, norms, 1.0)  # removed ties' points are unobserved: pinv leaves them out
     design = design / norms
@@ -239,22 +239,23 @@ def _dense_tie_sandwich(result, correlation, offset_sigma, gradient_sigma):
 
 
 def test_correlated_and_systematic_tie_errors_give_the_dense_sandwich_covariance(truth, rng):
-    """The covariance with correlated (κ = 2) and systematic tie errors (per pair fields of 0.2 pixel offset and
-    0.5 pixel gradient σ) against the estimator's covariance computed independently on the dense design of every
-    unknown (no Schur elimination; :func:`_dense_tie_sandwich`); without both terms the covariance is Q."""
+    """The covariance with correlated (κ = 2) and systematic tie errors (per pair fields, η 30 / 10) against the
+    estimator's covariance computed independently on the dense design of every unknown (no Schur elimination;
+    :func:`_dense_tie_sandwich`); without both terms the covariance is Q."""
     models, ties, controls = truth
     observed = noisy(ties, rng)
     start = perturbed(models, rng)
-    options = SequenceOptions(tie_correlation=2.0, tie_offset_sigma=0.2, tie_gradient_sigma=0.5)
+    options = SequenceOptions(tie_correlation=2.0, tie_offset_factor=30.0, tie_gradient_factor=10.0)
     result = adjust_sequence(start, observed, controls, options=options)
-    expected = _dense_tie_sandwich(result, 2.0, 0.2, 0.5)
+    expected = _dense_tie_sandwich(result, 2.0, (30.0, 10.0, 10.0))
     scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
     # in correlation units: the engine's Q itself agrees with the dense inverse to ~0.2 % (the last step's
     # linearization); the terms checked here are 30 % or more of the diagonal
     assert np.abs((result.covariance - expected) / scale).max() < 0.01
     assert np.all(np.diag(result.systematic) > 0.3 * np.diag(result.cofactor))
     plain = adjust_sequence(start, observed, controls, options=replace(options, tie_correlation=1.0,
-                                                                        tie_offset_sigma=0.0, tie_gradient_sigma=0.0))
+                                                                        tie_offset_factor=0.0,
+                                                                        tie_gradient_factor=0.0))
     np.testing.assert_array_equal(plain.systematic, 0.0)
     np.testing.assert_allclose(plain.covariance, plain.cofactor)
 
@@ -266,8 +267,8 @@ def test_bad_options_are_named():
         SequenceOptions(robust="tukey")
     with pytest.raises(SeaiceError, match="tie_correlation"):
         SequenceOptions(tie_correlation=0.5)
-    with pytest.raises(SeaiceError, match="tie_offset_sigma"):
-        SequenceOptions(tie_offset_sigma=-0.1)
+    with pytest.raises(SeaiceError, match="tie_offset_factor"):
+        SequenceOptions(tie_gradient_factor=-0.1)
 
 
 def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):

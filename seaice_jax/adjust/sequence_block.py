@@ -39,9 +39,14 @@ a σ per observation:
 * **Systematic tie errors**: the sub-pixel bias of the matches varies smoothly with the two images' sampling
   phase, so each pair's errors carry a common field (offset and gradients over the overlap): the scan-model
   unknowns absorb it whole (it never shows in the residuals, and the estimated variance factor does not see it)
-  and it moves the relative geometry. Removing each pair's affine field (known from the truth) cut one sequence's
-  drift error from 184 to 28 m. Per pair and axis an affine field with N(0, σ²) coefficients, propagated through
-  the adjustment (:func:`systematic_tie_covariance`; ``tie_offset_sigma``, ``tie_gradient_sigma``).
+  and it moves the relative geometry. Removing each pair's affine field (known from the truth) cut the drift error
+  of four sequences from 73-320 m to 14-51 m. The field is not of one size for every pair: fitted to the true
+  errors, its coefficients shrink with the pair's number of matches as the matches' own noise would (offset RMS
+  0.026 pixel for 30-60 matches, 0.010 for 150-400; about twice the noise's part in both), the signature of
+  errors correlated over the whole overlap rather than of a field of fixed size. So per pair and axis an affine
+  field whose offset and gradients have η_o and η_g times the variance (Xᵀ W X)⁻¹ that the pair's own matches give
+  them, propagated through the adjustment (:func:`systematic_tie_covariance`; ``tie_offset_factor``,
+  ``tie_gradient_factor``).
 
 Both are added to the covariance (``SequenceAdjustment.systematic``); the estimates stay those of the weighted
 adjustment.
@@ -95,12 +100,16 @@ class SequenceOptions:
             matches of simulated sequences (10 sequences of 3 images of 256 pixels, 100 pair axes of ≥ 30 ties):
             1 + Σ_j ρ_ij over the other matches within one template width (15 pixels) after each pair's affine
             field is removed, median 2.6, mean 2.6. 1: independent (ties simulated that way).
-        tie_offset_sigma, tie_gradient_sigma: pixels, σ of the systematic error common to the matches of one image
-            pair (module docstring, «Systematic tie errors»): per pair and image axis an offset and a gradient
-            along each axis (pixels of change across the whole image), added to the covariance. The defaults are
-            measured on :func:`~seaice_jax.imagery.ties.find_ties` matches of simulated sequences (10 sequences
-            of 3 images of 256 pixels, 114 pair axes, against the true correspondents: offset 0.014-0.018,
-            gradients 0.06-0.15 by maximum likelihood beside the matches' own noise). ``0, 0``: independent tie
+        tie_offset_factor, tie_gradient_factor: η_o, η_g, the size of the systematic error common to the matches
+            of one image pair (module docstring, «Systematic tie errors»): per pair and image axis an affine field
+            whose offset and gradients have η_o and η_g times the variance that the pair's matches would give them
+            were their errors independent of their final σ, added to the covariance. The default is measured on
+            :func:`~seaice_jax.imagery.ties.find_ties` matches of simulated Lancaster-like sequences (seeds
+            100-109 of ``experiments/sequence_block.py``: 4 images of 256 pixels, 12 control points; 204 pair
+            axes of ≥ 30 matches), against the true correspondents: the affine fit of each pair's true errors
+            beside the matches' own noise (κ times the fit's residual variance) gives η_o 12.9 (90 % bootstrap
+            over the sequences 10.3-16.5), η_g 7.8 (4.1-10.2), about the same for 30-60 matches as for 150-400
+            (on 10 fresh sequences, seeds 200-209 on the GSHHG coast: 16.0 / 9.5). ``0, 0``: independent tie
             errors (ties simulated that way, or a matcher shown to have none).
     """
 
@@ -113,17 +122,17 @@ class SequenceOptions:
     variance_groups: tuple[str, ...] = ("ties",)
     variance_tolerance: float = 0.01
     tie_correlation: float = 2.5
-    tie_offset_sigma: float = 0.015
-    tie_gradient_sigma: float = 0.1
+    tie_offset_factor: float = 13.0
+    tie_gradient_factor: float = 8.0
 
     def __post_init__(self):
         if not 0 < self.alpha < 1:
             raise SeaiceError(f"alpha must be in (0, 1), got {self.alpha}")
         if not self.tie_correlation >= 1:
             raise SeaiceError(f"tie_correlation must be >= 1, got {self.tie_correlation}")
-        if not (self.tie_offset_sigma >= 0 and self.tie_gradient_sigma >= 0):
-            raise SeaiceError(f"tie_offset_sigma and tie_gradient_sigma must be >= 0 pixels, got "
-                              f"{self.tie_offset_sigma} and {self.tie_gradient_sigma}")
+        if not (self.tie_offset_factor >= 0 and self.tie_gradient_factor >= 0):
+            raise SeaiceError(f"tie_offset_factor and tie_gradient_factor must be >= 0, got "
+                              f"{self.tie_offset_factor} and {self.tie_gradient_factor}")
         if not 0 < self.batch <= 1:
             raise SeaiceError(f"batch must be in (0, 1], got {self.batch}")
         if self.robust is not None and self.robust not in ROBUST:
@@ -140,7 +149,7 @@ class SequenceAdjustment(eqx.Module):
             included (image i's unknowns are rows 5i..5i+4): Q with the estimated variance factors, or σ̂0² Q
             without (``variance_groups=()``), plus ``systematic``. cofactor: Q (the final σ taken as right).
         systematic: ``(5 n_images, 5 n_images)`` the part of ``covariance`` due to the ties' correlated and
-            systematic errors (module docstring; 0 with ``tie_correlation=1`` and both tie σ of the pair fields 0).
+            systematic errors (module docstring; 0 with ``tie_correlation=1`` and both tie factors 0).
         sigma0: a posteriori σ̂0 (with the final σ). degrees_of_freedom: of the final adjustment.
         variance_factors: ``{group: σ̂g²}`` estimated (relative to the a priori σ; empty without).
         tie_latitude, tie_longitude: ``(n_ties,)`` radians, adjusted tie positions (NaN for removed ties).
@@ -239,31 +248,49 @@ def _worst_ties(problem: Problem, result: engine.Adjustment, alpha: float, batch
 _linearize = eqx.filter_jit(linearize)
 
 
-def _pair_basis(pixel, scan, n_pixels, n_scans, offset_sigma, gradient_sigma) -> np.ndarray:
-    """``(m, 3)`` the systematic error field's basis at one pair's matches, each times its σ: offset, and the
-    gradients along pixel and scan (about the matches' centroid, per image width)."""
-    return np.stack([np.full(pixel.shape, offset_sigma), gradient_sigma * (pixel - pixel.mean()) / n_pixels,
-                     gradient_sigma * (scan - scan.mean()) / n_scans], 1)
+def _pair_fields(pixel, scan, pair, sizes, whitened, factors):
+    """``(m, 2, 3)`` per matched observation and axis, the whitened values of the three standardized coefficients of
+    its pair's affine error field (module docstring): the basis X (offset; gradients along pixel and scan about the
+    pair's centroid, per image width) times 1/σ, times L with L Lᵀ = S (Xᵀ W X)⁻¹ S of the pair and axis,
+    S = diag(√``factors``) ``(3,)``.
+
+    Args:
+        pixel, scan: ``(m,)`` the matched observations. pair: ``(m,)`` pair number 0..P−1. sizes: ``(m, 2)`` the
+            matched image's pixels and scan lines. whitened: ``(m, 2)`` 1/σ per axis.
+    """
+    count = np.bincount(pair)
+    centre = [np.bincount(pair, weights=v) / count for v in (pixel, scan)]
+    basis = np.stack([np.ones(pixel.shape), (pixel - centre[0][pair]) / sizes[:, 0],
+                      (scan - centre[1][pair]) / sizes[:, 1]], 1)
+    field = basis[:, None, :] * whitened[:, :, None]  # (m, 2, 3)
+    information = np.zeros((count.size, 2, 3, 3))
+    np.add.at(information, pair, np.einsum("mac,mad->macd", field, field))
+    values, vectors = np.linalg.eigh(information)  # ⁻¹ on the range (a pair of fewer than 3 ties: rank deficient)
+    scaled = np.where(values > 1e-12 * values[..., -1:], 1.0 / np.sqrt(np.maximum(values, 1e-300)), 0.0)
+    root = np.sqrt(np.asarray(factors))[:, None] * vectors * scaled[..., None, :]  # (P, 2, 3, 3): S info⁺ S
+    return np.einsum("mac,macd->mad", field, root[pair])
 
 
 def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, reference_image, sizes, cofactor,
-                              offset_sigma: float, gradient_sigma: float) -> np.ndarray:
+                              offset_factor: float, gradient_factor: float) -> np.ndarray:
     """``(n, n)`` covariance of the estimated θ due to a systematic error field of the tie matches (module
-    docstring): for every pair (reference image a, matched image b) and axis of b, three coefficients N(0, σ²) of
-    an affine field added to b's observations of the ties matched against a. θ̂ moves by g = Q Āᵀ W u for a field
-    u, Ā the tie rows' design with the tie points eliminated tie by tie (Ā = A_θ − A_p (A_pᵀ W A_p)⁻¹ A_pᵀ W A_θ
-    per tie), W the final weights and Q = (Āᵀ W Ā + the rest)⁻¹ the ``cofactor``, all at the solution: the
-    covariance is Σ g gᵀ over the coefficients (the estimator stays the weighted one; this is its covariance under
-    the wider error model).
+    docstring): for every pair (reference image a, matched image b) and axis of b, an affine field u = X c added to
+    b's observations of the ties matched against a, c ~ N(0, S (Xᵀ W X)⁻¹ S), S = diag(√η_o, √η_g, √η_g): η
+    times the covariance that the pair's own matches, were their errors independent of the final σ, would give
+    the affine part of their errors. θ̂ moves by g = Q Āᵀ W u, Ā the tie rows' design with the tie points
+    eliminated tie by tie (Ā = A_θ − A_p (A_pᵀ W A_p)⁻¹ A_pᵀ W A_θ per tie), W the final weights and
+    Q = (Āᵀ W Ā + the rest)⁻¹ the ``cofactor``, all at the solution: the covariance is Σ g gᵀ over the
+    coefficients (the estimator stays the weighted one; this is its covariance under the wider error model). All
+    pairs at once: a sparse scatter per observation and per observation of the same tie, one dense product.
 
     Args:
         problem: the final problem (removed ties with σ = ∞, padded rows unobserved).
         result: its adjustment. reference_image: ``(n_ties,)``. sizes: ``(n_images, 2)`` pixels and scan lines.
-        cofactor: ``(n, n)`` Q of ``problem``.
-        offset_sigma, gradient_sigma: pixels (:class:`SequenceOptions`).
+        cofactor: ``(n, n)`` Q of ``problem``. offset_factor, gradient_factor: η_o, η_g
+            (:class:`SequenceOptions`).
     """
     size = cofactor.shape[0]
-    if not (offset_sigma > 0 or gradient_sigma > 0):
+    if not (offset_factor > 0 or gradient_factor > 0):
         return np.zeros((size, size))
     theta, points = result.parameters["theta"], result.parameters["points"]
     reference_image, n_ties = np.asarray(reference_image), int(np.asarray(reference_image).size)
@@ -273,37 +300,43 @@ def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, refer
             continue
         linear = _linearize(block, theta, points)
         tie = np.asarray(block.point_index)
-        live = tie < n_ties  # padded points are never observed
+        live = (tie < n_ties) & np.asarray(weights(block) > 0).all(axis=1)  # padding and removed ties: never
         rows.append((np.asarray(linear.theta)[live], np.asarray(linear.point)[live],
                      np.asarray(block.global_index)[live], tie[live], np.asarray(weights(block))[live],
                      np.asarray(block.data["pixel"])[live], np.asarray(block.data["scan"])[live]))
-    if not rows:
-        return np.zeros((size, size))
     j_theta, j_point, index, tie, weight, pixel, scan = (np.concatenate(a) for a in zip(*rows, strict=True))
+    image = index[:, 0] // UNKNOWNS_PER_IMAGE
+    matched = np.nonzero(image != reference_image[tie])[0]
+    if matched.size == 0:
+        return np.zeros((size, size))
+    pairs, pair = np.unique(np.stack([reference_image[tie[matched]], image[matched]], 1), axis=0,
+                            return_inverse=True)
+    pair = pair.ravel()
+    field = _pair_fields(pixel[matched], scan[matched], pair, np.asarray(sizes)[image[matched]],
+                         weight[matched], (offset_factor, gradient_factor, gradient_factor))  # (k, 2, 3)
+    column = np.broadcast_to((6 * pair[:, None, None] + 3 * np.arange(2)[:, None] + np.arange(3))[..., None],
+                             (matched.size, 2, 3, UNKNOWNS_PER_IMAGE))  # (k, axis, coefficient, θ of the image)
+    right = np.zeros((size, 6 * pairs.shape[0]))
+    # the field's direct pull on the matched image: J_θᵀ W u
+    np.add.at(right, (np.broadcast_to(index[matched][:, None, None, :], column.shape).reshape(-1),
+                      column.reshape(-1)),
+              np.einsum("mai,mac->maci", j_theta[matched], field).reshape(-1))
+    # the tie points' response, − (J_pᵀ W J_p)⁻¹ J_pᵀ W u per tie, pulls every observation of the tie
     normal = np.zeros((n_ties, 2, 2))
     np.add.at(normal, tie, np.einsum("mci,mcj->mij", j_point, j_point))
-    inverse = np.linalg.pinv(normal)  # removed ties: 0
-    image = index[:, 0] // UNKNOWNS_PER_IMAGE
-    first = reference_image[tie]
-    matched = (weight > 0).all(axis=1) & (image != first)
-    gains = []
-    for a, b in sorted({(int(x), int(y)) for x, y in zip(first[matched], image[matched], strict=True)}):
-        pick = np.nonzero(matched & (first == a) & (image == b))[0]
-        basis = _pair_basis(pixel[pick], scan[pick], sizes[b][0], sizes[b][1], offset_sigma, gradient_sigma)
-        touched = np.nonzero(np.isin(tie, tie[pick]))[0]  # every observation of those ties
-        for axis in range(2):
-            field = basis * weight[pick, axis][:, None]  # (k, 3) whitened field per coefficient
-            right = np.zeros((size, 3))
-            np.add.at(right, index[pick], np.einsum("mi,mc->mic", j_theta[pick, axis, :], field))
-            moved = np.zeros((n_ties, 2, 3))
-            np.add.at(moved, tie[pick], np.einsum("md,mc->mdc", j_point[pick, axis, :], field))
-            shift = np.einsum("tde,tec->tdc", inverse, moved)  # the tie points' response
-            np.add.at(right, index[touched], -np.einsum("mei,med,mdc->mic", j_theta[touched], j_point[touched],
-                                                        shift[tie[touched]]))
-            gains.append(right)
-    if not gains:
-        return np.zeros((size, size))
-    gain = cofactor @ np.concatenate(gains, axis=1)
+    inverse = np.linalg.pinv(normal)
+    shift = np.einsum("mde,mae,mac->mdac", inverse[tie[matched]], j_point[matched], field)  # (k, 2, 2, 3)
+    coupling = np.einsum("mei,med->mid", j_theta, j_point)  # (m, 5, 2): J_θᵀ W J_p per observation
+    order = np.argsort(tie, kind="stable")
+    start = np.searchsorted(tie[order], np.arange(n_ties))
+    seen = np.bincount(tie, minlength=n_ties)
+    for position in range(int(seen.max())):
+        has = seen[tie[matched]] > position
+        other = order[start[tie[matched[has]]] + position]  # the position-th observation of each matched tie
+        values = -np.einsum("mid,mdac->maci", coupling[other], shift[has])
+        np.add.at(right, (np.broadcast_to(index[other][:, None, None, :], values.shape).reshape(-1),
+                          column[has].reshape(-1)), values.reshape(-1))
+    gain = cofactor @ right
     return gain @ gain.T
 
 
@@ -401,7 +434,7 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     systematic = (correlated_tie_covariance(current, result, cofactor, 1.0 if estimated else float(result.sigma0) ** 2,
                                             options.tie_correlation)
                   + systematic_tie_covariance(current, result, observations.reference_image, sizes, cofactor,
-                                              options.tie_offset_sigma, options.tie_gradient_sigma))
+                                              options.tie_offset_factor, options.tie_gradient_factor))
     return SequenceAdjustment(
         tuple(observations.models_at(jnp.asarray(theta))), theta, covariance + systematic,
         np.asarray(result.cofactor), systematic, float(result.sigma0), result.degrees_of_freedom, latitude, longitude,
