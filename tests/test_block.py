@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from seaice_jax.adjust.block import BlockOptions, simultaneous_block
+from seaice_jax.adjust.block_layout import layout_block
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
+from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.strips import Measurements
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, aidjex_scenario
 
@@ -35,8 +37,9 @@ def test_noise_free_block_returns_the_truth_from_the_navigation_only_start(exact
                            turn_prior=None, range_scale_prior=1e-9)
     result = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), options)
     assert result.converged and result.solver == "schur"
-    start = simultaneous_block(exact.coverages, exact.plane, len(exact.kinds), replace(options, max_iterations=0))
-    start_error = np.concatenate([e[np.isfinite(e).all(1)] for e in errors_of(start, exact)])
+    layout = layout_block(exact.coverages, len(exact.kinds), exact.plane, options, MEAN_RADIUS)
+    start_error = np.array([layout.start_points[u] - exact.truth[c].positions[p]
+                            for u, (c, p) in enumerate(layout.point_key) if c >= 0])  # the start: navigation only
     error = np.concatenate([e[np.isfinite(e).all(1)] for e in errors_of(result, exact)])
     assert np.abs(start_error).max() > 1000.0  # the navigation errors put the start kilometres off
     assert error.shape[0] > 150 and np.abs(error).max() < 1.0
@@ -173,8 +176,10 @@ def test_a_control_point_one_kilometre_off_is_flagged_and_named(small):
     # measured on one strip of that day: its image measurement is the only other observation of the point, and the
     # report says the two cannot be told apart
     assert worst.separable or worst.confounded_with.startswith(f"image x of point 1 on {coverage.name}/")
-    flag = next(f for f in result.adjustment.flagged() if f.group == "control")
-    redundancy = float(result.adjustment.redundancy["control"][flag.row, flag.component])
+    adjustment = result.adjustment
+    assert adjustment is not None
+    flag = next(f for f in adjustment.flagged() if f.group == "control")
+    redundancy = float(adjustment.redundancy["control"][flag.row, flag.component])
     assert worst.estimated_error == pytest.approx(1000.0, abs=4 * sigma / np.sqrt(redundancy))
 
 

@@ -1,6 +1,7 @@
 """One run, one output folder (seaice_jax.outputs): re-run, different run, interrupted run and concurrent runs leave
 either the old complete result or the new complete result, never a mix, and no temporary files."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from seaice_jax.cli import CACHE_VARIABLE
 from seaice_jax.errors import SeaiceError
 from seaice_jax.outputs import Interrupted, output_file, output_folder
 
@@ -196,37 +198,46 @@ def test_a_swallowed_ctrl_c_is_not_lost(tmp_path):
     _clean(tmp_path)
 
 
-def _seaice(*args, **kwargs):
-    return subprocess.Popen([sys.executable, "-m", "seaice_jax.cli", "--no-compile-cache", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, **kwargs)
+@pytest.fixture(scope="module")
+def seaice(tmp_path_factory):
+    """Start ``seaice`` commands sharing one persistent compilation cache (the first run fills it, later runs of the
+    same command skip XLA's compilations)."""
+    environment = {**os.environ, CACHE_VARIABLE: str(tmp_path_factory.mktemp("jax_cache"))}
+
+    def start(*args, **kwargs):
+        return subprocess.Popen([sys.executable, "-m", "seaice_jax.cli", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, cwd=ROOT, env=environment, **kwargs)
+    return start
 
 
 SMALL = ("simulate", "lancaster", "--images", "2", "--size", "48")
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> dict[str, bytes]:
+def reference(tmp_path_factory, seaice) -> dict[str, bytes]:
     """The complete result of the small command, run alone."""
     folder = tmp_path_factory.mktemp("reference") / "out"
-    process = _seaice(*SMALL, "--out", str(folder))
+    process = seaice(*SMALL, "--out", str(folder))
     _, error = process.communicate(timeout=600)
     assert process.returncode == 0, error
     return _tree(folder)
 
 
-def test_cli_rerun_and_different_run(tmp_path, reference):
+def test_cli_rerun_and_different_run(tmp_path, reference, seaice):
     target = tmp_path / "out"
-    process = _seaice("simulate", "aidjex", "--strips", "3", "--features", "60", "--out", str(target))
-    assert process.communicate(timeout=600) and process.returncode == 0
-    aidjex = _tree(target)
-    again = _seaice(*SMALL, "--out", str(target))
+    process = seaice("examples", str(target))  # a different run (no compilation: the example files)
+    _, error = process.communicate(timeout=600)
+    assert process.returncode == 0, error
+    other = _tree(target)
+    assert set(other) - set(reference)  # the other run wrote files the small one does not
+    again = seaice(*SMALL, "--out", str(target))
     _, error = again.communicate(timeout=600)
     assert again.returncode == 2 and f"{target}: the folder is not empty; pass --overwrite" in error
-    assert _tree(target) == aidjex
-    different = _seaice(*SMALL, "--out", str(target), "--overwrite")
+    assert _tree(target) == other
+    different = seaice(*SMALL, "--out", str(target), "--overwrite")
     _, error = different.communicate(timeout=600)
     assert different.returncode == 0, error
-    assert _tree(target) == reference  # no file of the AIDJEX run is left beside the new one
+    assert _tree(target) == reference  # no file of the other run is left beside the new one
     _clean(tmp_path)
 
 
@@ -240,9 +251,9 @@ def _wait_for_staging(parent: Path, process, timeout: float = 600.0) -> bool:
     return False
 
 
-def test_cli_terminated_while_writing(tmp_path, reference):
+def test_cli_terminated_while_writing(tmp_path, reference, seaice):
     target = tmp_path / "out"
-    process = _seaice(*SMALL, "--out", str(target))
+    process = seaice(*SMALL, "--out", str(target))
     if _wait_for_staging(tmp_path, process):
         process.send_signal(signal.SIGTERM)
     _, error = process.communicate(timeout=600)
@@ -253,9 +264,9 @@ def test_cli_terminated_while_writing(tmp_path, reference):
     _clean(tmp_path)
 
 
-def test_cli_two_runs_at_once(tmp_path, reference):
+def test_cli_two_runs_at_once(tmp_path, reference, seaice):
     target = tmp_path / "out"
-    processes = [_seaice(*SMALL, "--out", str(target), "--overwrite") for _ in range(2)]
+    processes = [seaice(*SMALL, "--out", str(target), "--overwrite") for _ in range(2)]
     results = [(p.communicate(timeout=600)[1], p.returncode) for p in processes]
     for error, code in results:
         assert code == 0 or (code == 2 and f"{target}: another run is writing into it now" in error), error
