@@ -16,16 +16,18 @@ from typing import cast
 
 import numpy as np
 import pytest
+import xarray as xr
 from distributed import Client, LocalCluster
 
 from seaice_jax.cli import main
 from seaice_jax.errors import EXIT_USAGE, SeaiceError
+from seaice_jax.imagery.tracking import GOOD, NO_DATA
 from seaice_jax.io.sequence import read_sequence, write_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.simulate.satellite import simulate_sequence
 from seaice_jax.timefmt import time_after
-from seaice_jax.workflows.archive import remap_archive, run_remap_archive
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap
+from seaice_jax.workflows.archive import remap_archive, run_remap_archive, run_track_archive
+from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap, run_track
 
 IMAGES = 6
 NO_DASHBOARD = cast(str, None)  # typed str; None starts no web server
@@ -171,10 +173,71 @@ def test_cli_dask_options_are_checked_before_anything_runs(archive, tmp_path, ca
 def test_default_remap_path_does_not_import_dask():
     code = ("import sys\nfrom seaice_jax.cli import build_parser\n"
             "build_parser().parse_args(['remap', 'p.toml', '--out', 'o'])\n"
+            "build_parser().parse_args(['track', 'remapped', '--out', 'o'])\n"
             "from seaice_jax.workflows import image_sequence\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert run.stdout.strip() == "[]"
+
+
+def _same_drift_outputs(expected: Path, actual: Path):
+    """NetCDF files: every variable and attribute equal (bit for bit) but the creation time; others: the same
+    bytes."""
+    names = sorted(p.name for p in expected.iterdir())
+    assert sorted(p.name for p in actual.iterdir()) == names
+    for name in names:
+        if name.endswith(".nc"):
+            with (xr.open_dataset(expected / name, decode_cf=False) as a,
+                  xr.open_dataset(actual / name, decode_cf=False) as b):
+                for stamped in ("history", "date_created"):
+                    a.attrs.pop(stamped, None)
+                    b.attrs.pop(stamped, None)
+                assert a.identical(b), name
+        else:  # figures, floes.csv, GeoJSON
+            assert (expected / name).read_bytes() == (actual / name).read_bytes(), name
+
+
+def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
+    """Pairs as tasks on 2 worker processes, with a land mask and the OSI SAF layout: the files and every tracked
+    array of the single-process ``run_track``, bit for bit."""
+    remapped = archive[1]
+    land = np.zeros((80, 80), bool)
+    land[:, :20] = True
+    np.save(tmp_path / "land.npy", land)
+    options = {"progress": False, "layout": "osisaf", "land": tmp_path / "land.npy"}
+    single = run_track(remapped, tmp_path / "single", **options)
+    dask = run_track_archive(remapped, tmp_path / "dask", workers=2, **options)
+    assert [f.name for f in dask.files] == [f.name for f in single.files]
+    _same_drift_outputs(tmp_path / "single", tmp_path / "dask")
+    assert len(dask.result.pairs) == IMAGES - 1 and dask.report == single.report
+    for a, b in zip(single.result.pairs, dask.result.pairs, strict=True):
+        assert a.first == b.first and a.interval == b.interval
+        for field in ("status", "x", "y", "dx", "dy", "sigma", "u_east", "v_north"):
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+        assert np.any(b.status == GOOD) and np.any(b.status == NO_DATA)  # vectors at sea, none from land
+    for field in ("floe", "image", "time", "latitude", "longitude", "pixel", "scan"):
+        assert np.array_equal(getattr(single.result.records, field), getattr(dask.result.records, field)), field
+    assert len(set(dask.result.records.image.tolist())) > 2  # floes followed past the first pair
+
+
+def test_bad_track_input_is_refused_before_the_cluster_starts(archive, tmp_path):
+    remapped = archive[1]
+    tifs = [str(remapped / "A000.tif"), str(remapped / "A001.tif")]
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "remapped.npz").write_bytes(b"not a zip archive")
+    np.save(tmp_path / "land.npy", np.zeros((3, 3), bool))
+    for source, land, workers, message in (
+            (tifs, None, 2, "GeoTIFF files are tracked by the single-process run"),
+            (tmp_path / "none", None, 2, r"none/remapped.npz: file not found"),
+            (tmp_path / "broken", None, 2, r"broken/remapped.npz: truncated or not a remapped stack"),
+            (remapped, tmp_path / "land.npy", 2, r"land.npy: a land mask must be a bool array of the grid's"),
+            (remapped, None, 0, "--workers must be at least 1")):
+        with pytest.raises(SeaiceError, match=message):
+            run_track_archive(source, tmp_path / "out", progress=False, land=land, workers=workers)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken", "land.npy"]  # no output, no staging folder
+    assert main(["track", str(remapped), "--out", str(tmp_path / "out"), "--workers", "2", "--scheduler",
+                 "tcp://127.0.0.1:1"]) == EXIT_USAGE
+    assert not (tmp_path / "out").exists()
 
 
 _SHARDED = """

@@ -2,7 +2,9 @@
 
 As in 1985: grey scales stretched to show the ice, areas without data white, an optional filled overlay of the
 land (so changing views of the coast do not distract), a date label on every frame, and optionally the tracked
-points. Written as an animated GIF (Pillow) or an MP4 (OpenCV's ``mp4v`` encoder).
+points; and an optional map overlay (an RGBA image: the coastline, a labelled graticule and a scale bar, as the
+workflow draws them with :func:`seaice_jax.report.maps.map_overlay`). Written as an animated GIF (Pillow) or an MP4
+(OpenCV's ``mp4v`` encoder).
 """
 
 import os
@@ -29,7 +31,16 @@ def stretch(images, low: float = 1.0, high: float = 99.0):
     return np.clip((images - lo) / max(hi - lo, 1e-12), 0.0, 1.0) * 255.0
 
 
-def render_frames(images, labels, land=None, points=None, scale: int = 2):
+def composite(frame, overlay):
+    """``overlay`` (RGBA uint8, the frame's size) laid over the RGB uint8 ``frame`` ("over" with straight alpha)."""
+    overlay = np.asarray(overlay)
+    if overlay.shape[:2] != frame.shape[:2] or overlay.shape[2] != 4:
+        raise SeaiceError(f"the map overlay is {overlay.shape}, the frames {frame.shape[:2]} (+ 4 channels)")
+    alpha = overlay[..., 3:4].astype(float) / 255.0
+    return np.round(overlay[..., :3] * alpha + frame * (1.0 - alpha)).astype(np.uint8)
+
+
+def render_frames(images, labels, land=None, points=None, scale: int = 2, overlay=None):
     """RGB frames ``(k, rows·scale, columns·scale, 3)`` uint8 of a remapped sequence.
 
     Args:
@@ -38,6 +49,8 @@ def render_frames(images, labels, land=None, points=None, scale: int = 2):
         land: ``(rows, columns)`` bool, filled with a land colour.
         points: per frame an ``(n, 2)`` array of (row, column) positions to mark, or ``None``.
         scale: pixel replication factor (nearest neighbour, so pixels stay visible).
+        overlay: ``(rows·scale, columns·scale, 4)`` uint8 RGBA laid over every frame (under the points and the
+            date), e.g. the coastline, graticule and scale bar.
     """
     images = np.asarray(images, float)
     if len(labels) != len(images):
@@ -48,7 +61,8 @@ def render_frames(images, labels, land=None, points=None, scale: int = 2):
         frame = np.repeat(np.nan_to_num(grey[k], nan=255.0)[..., None], 3, axis=2).astype(np.uint8)
         if land is not None:
             frame[np.asarray(land, bool)] = LAND_COLOUR
-        frame = np.ascontiguousarray(np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1))
+        frame = np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1)
+        frame = np.ascontiguousarray(frame if overlay is None else composite(frame, overlay))
         if points is not None and points[k] is not None:
             for row, column in np.asarray(points[k], float).reshape(-1, 2):
                 if np.isfinite(row) and np.isfinite(column):

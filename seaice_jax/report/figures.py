@@ -25,6 +25,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from seaice_jax.drift.kinematics import error_ellipses  # noqa: E402
 from seaice_jax.errors import SeaiceError  # noqa: E402
 from seaice_jax.files import atomic_path  # noqa: E402
+from seaice_jax.report.maps import COASTLINE_GID, CONTROL_GID, coast_in_image, decorate_map  # noqa: E402
 
 FIGURE_FORMATS_VARIABLE = "SEAICE_FIGURE_FORMATS"
 """Environment variable listing extra formats (``pdf``, ``svg``, comma-separated) written beside each PNG."""
@@ -108,7 +109,17 @@ def _vector_key(ax, arrows, length: float, label: str):
     ax.quiverkey(arrows, 1.04, 0.02, length, label, labelpos="E", coordinates="axes", fontproperties={"size": 7})
 
 
+def _decorate(ax, projection, **options):
+    """The map decorations (:func:`~seaice_jax.report.maps.decorate_map`) where the map's projection is known."""
+    if projection is not None:
+        decorate_map(ax, projection, **options)
+
+
 def _kilometre_axes(ax, crs: str):
+    """Axes in km of ``crs``; the equal-aspect map box sits at the left of its layout cell (centred, a box shrunk to
+    its aspect moves away from where the constrained layout measured its axis labels, which then leave the
+    figure)."""
+    ax.set_anchor("W")
     kilometres = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:.0f}")
     ax.xaxis.set_major_formatter(kilometres)
     ax.yaxis.set_major_formatter(kilometres)
@@ -150,28 +161,12 @@ def _colours(count: int):
     return [plt.get_cmap("viridis")(v) for v in np.linspace(0.0, 0.95, count)]
 
 
-def _graticule(ax, projection, x_limits, y_limits):
-    """Meridians and parallels (1°/5° apart on small maps, 5°/20° on large ones) on projected axes."""
-    span_km = max(np.ptp(x_limits), np.ptp(y_limits)) / 1000.0
-    lat_step, lon_step = (1.0, 5.0) if span_km < 1500 else (5.0, 20.0)
-    latitude_grid = np.radians(np.linspace(40.0, 89.9, 400))
-    for lon in np.arange(-180.0, 180.0, lon_step):
-        x, y = projection.forward(latitude_grid, np.full_like(latitude_grid, np.radians(lon)))
-        ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
-    longitude_grid = np.radians(np.linspace(-180.0, 180.0, 1441))
-    for lat in np.arange(40.0, 90.0, lat_step):
-        x, y = projection.forward(np.full_like(longitude_grid, np.radians(lat)), longitude_grid)
-        ax.plot(np.asarray(x), np.asarray(y), color="0.85", lw=0.6, zorder=0)
-
-
 def _draw_panel(ax, panel: MapPanel):
     xs = np.concatenate([np.ravel(layer.x) for layer in panel.layers])
     ys = np.concatenate([np.ravel(layer.y) for layer in panel.layers])
     margin = 0.1 * max(np.nanmax(xs) - np.nanmin(xs), np.nanmax(ys) - np.nanmin(ys))
     x_limits = (np.nanmin(xs) - margin, np.nanmax(xs) + margin)
     y_limits = (np.nanmin(ys) - margin, np.nanmax(ys) + margin)
-    _graticule(ax, panel.projection, x_limits, y_limits)
-    ax.plot([], [], color="0.85", lw=0.6, label="graticule")
     for colour, layer in zip(_colours(len(panel.layers)), panel.layers, strict=True):
         if layer.kind == "grid":
             ax.plot(layer.x, layer.y, color=colour, lw=0.5)
@@ -184,13 +179,15 @@ def _draw_panel(ax, panel: MapPanel):
     ax.set_xlim(*x_limits)
     ax.set_ylim(*y_limits)
     ax.set_aspect("equal")
+    decorate_map(ax, panel.projection)
     _kilometre_axes(ax, crs_name(panel.projection))
     ax.set_title(panel.title, fontsize=9)
     _legend_outside(ax)
 
 
 def maps_figure(panels: Sequence[MapPanel], title: str) -> Figure:
-    """Maps side by side, each with a graticule, axes in projected kilometres of the panel's projection."""
+    """Maps side by side, each with the coastline and land, a labelled graticule and a scale bar
+    (:func:`~seaice_jax.report.maps.decorate_map`), axes in projected kilometres of the panel's projection."""
     fig, axes = _figure(6.0 * len(panels) + 1.5, 5.5, 1, len(panels), squeeze=False)
     for ax, panel in zip(axes[0], panels, strict=True):
         _draw_panel(ax, panel)
@@ -238,12 +235,13 @@ def vectors_figure(positions, vectors, title: str, label: str, background=None,
     The arrow scale is in the vector key; ``background``: optional ``(n, 2)`` positions drawn as grey dots
     (``background_label`` in the legend); ``covariances``: optional ``(n, 2, 2)`` (m²) of the vectors, drawn as
     95 % error ellipses at the arrow tips at the arrows' scale times :func:`ellipse_magnification` (stated in the
-    legend); ``projection``: the positions' map projection, named on the axes.
+    legend); ``projection``: the positions' map projection, named on the axes and used to draw the coastline
+    and land, a labelled graticule and a scale bar (:func:`~seaice_jax.report.maps.decorate_map`).
     """
     from matplotlib.patches import Ellipse
 
     positions, vectors = np.asarray(positions, float), np.asarray(vectors, float)
-    fig, ax = _figure(8.0, 6.0)
+    fig, ax = _figure(8.5, 6.0)
     if background is not None:
         ax.scatter(*np.asarray(background).T, s=3, color="0.7", zorder=0, label=background_label)
     length = float(np.nanpercentile(np.hypot(*vectors.T), 90)) if vectors.size else 1.0
@@ -265,6 +263,7 @@ def vectors_figure(positions, vectors, title: str, label: str, background=None,
                                  angle=np.degrees(angle[k]), fill=False, color="C3", lw=0.6))
         ax.plot([], [], color="C3", lw=0.6, label=f"95 % error ellipse\n({_magnification_text(factor)})")
     ax.set_aspect("equal")
+    _decorate(ax, projection)
     _kilometre_axes(ax, crs_name(projection))
     ax.set_title(f"{title}\n{label}", fontsize=9)
     _legend_outside(ax)
@@ -339,10 +338,11 @@ def plot_tie_discrepancies(path: str | os.PathLike, *args, **options) -> Path:
 def box_averages_figure(boxes, title: str, background=None, projection=None) -> Figure:
     """Box-averaged velocity vectors with their standard-deviation rectangles at the arrow tips (source 001,
     Figure 4-7): ``boxes`` a :class:`~seaice_jax.drift.kinematics.BoxAverages` (m, m/s); the number under each
-    arrow is the count of velocities averaged."""
+    arrow is the count of velocities averaged; ``projection``: the map's, for the coastline, graticule and scale bar
+    (:func:`~seaice_jax.report.maps.decorate_map`)."""
     from matplotlib.patches import Rectangle
 
-    fig, ax = _figure(8.0, 6.0)
+    fig, ax = _figure(8.5, 6.0)
     if background is not None:
         ax.scatter(*np.asarray(background).T, s=2, color="0.75", zorder=0, label="floe positions")
     speed = np.hypot(boxes.u, boxes.v)
@@ -363,6 +363,7 @@ def box_averages_figure(boxes, title: str, background=None, projection=None) -> 
     ax.plot([], [], color="C3", lw=0.8, label="±1 standard deviation")
     ax.plot([], [], " ", label="numbers: velocities per box")
     ax.set_aspect("equal")
+    _decorate(ax, projection)
     _kilometre_axes(ax, crs_name(projection))
     ax.set_title(title, fontsize=9)
     _legend_outside(ax)
@@ -401,7 +402,8 @@ def plot_velocity_series(path: str | os.PathLike, *args, **options) -> Path:
 def remapped_figure(images, titles, extent_km, vectors=None, projection=None,
                   units: str = "image value (as digitized)") -> Figure:
     """Remapped images side by side (NaN white) on one grey scale with its colour bar (``units``), axes in km of
-    ``projection``; ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
+    ``projection`` (given: with the coastline as a line over the image, a labelled graticule and a scale bar,
+    :func:`~seaice_jax.report.maps.decorate_map`); ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
     count = len(images)
     columns = min(count, 4)
     rows = -(-count // columns)
@@ -422,6 +424,7 @@ def remapped_figure(images, titles, extent_km, vectors=None, projection=None,
             ax.quiver(*vectors, angles="xy", scale_units="xy", scale=0.2, color="C1", width=0.006)
         ax.set_xlabel("x (km)", fontsize=7)
         ax.set_ylabel("y (km)", fontsize=7)
+        _decorate(ax, projection, unit=1000.0, land=False, coast_colour="orange", fontsize=5.0)
     fig.colorbar(shown[0], ax=list(axes.ravel()[:count]), label=units, shrink=0.8)
     fig.suptitle(f"Remapped images on one grid ({crs}); white: no data", fontsize=9)
     return fig
@@ -434,9 +437,10 @@ def plot_remapped(path: str | os.PathLike, *args, **options) -> Path:
 
 def trajectories_figure(floe, x, y, title: str, limit: int = 400, projection=None) -> Figure:
     """Floe trajectories (source 001, Figure 4-3): one line per floe through its fixes (m, in time order of the
-    rows), a dot at its first fix; at most ``limit`` floes drawn."""
+    rows), a dot at its first fix; at most ``limit`` floes drawn; ``projection``: the map's, for the coastline,
+    graticule and scale bar (:func:`~seaice_jax.report.maps.decorate_map`)."""
     floe, x, y = np.asarray(floe), np.asarray(x, float), np.asarray(y, float)
-    fig, ax = _figure(8.0, 6.0)
+    fig, ax = _figure(8.5, 6.0)
     for f in list(dict.fromkeys(floe.tolist()))[:limit]:
         at = floe == f
         ax.plot(x[at], y[at], lw=0.7, color="C0")
@@ -444,6 +448,7 @@ def trajectories_figure(floe, x, y, title: str, limit: int = 400, projection=Non
     ax.plot([], [], lw=0.7, color="C0", label="trajectory")
     ax.plot([], [], ".", ms=3, color="C3", label="first fix")
     ax.set_aspect("equal")
+    _decorate(ax, projection)
     _kilometre_axes(ax, crs_name(projection))
     ax.set_title(title, fontsize=9)
     _legend_outside(ax)
@@ -453,3 +458,50 @@ def trajectories_figure(floe, x, y, title: str, limit: int = 400, projection=Non
 def plot_trajectories(path: str | os.PathLike, *args, **options) -> Path:
     """Write :func:`trajectories_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
     return _save(trajectories_figure(*args, **options), path)
+
+
+def coastline_overlay_figure(image, model, coastline, control=None, title: str = "") -> Figure:
+    """The coastline-overlay check of a rectification (source 001, Appendix A, VHR2: "good rectifications, as judged
+    both from control point errors and coastal map overlays"): the image in image space, scan lines downward, with
+    the coastline projected into it through the fitted scan model, so a misfit shows as a shifted or twisted coast.
+
+    Args:
+        image: ``(n_scans, n_pixels)`` image values (NaN: no data); scan line 1 is the top row, pixel 1 the left
+            column (1-based centres, as the model counts).
+        model: a :class:`~seaice_jax.geometry.scan.ScanModel`; the coast's latitudes/longitudes (degrees) enter
+            :meth:`~seaice_jax.geometry.scan.ScanModel.inverse` as the model's sphere latitudes, the convention
+            control stations follow.
+        coastline: a :class:`~seaice_jax.io.coastline.Coastline` covering the image.
+        control: optional measured control points ``(pixel, scan)`` or ``(pixel, scan, names)`` (1-based), drawn
+            as markers.
+        title: the figure's title.
+    """
+    image = np.asarray(image, float)
+    if image.ndim != 2:
+        raise SeaiceError(f"coastline overlay: the image must be 2-D (scan lines x pixels), got shape {image.shape}")
+    fig, ax = _figure(8.0, float(np.clip(6.0 * image.shape[0] / max(image.shape[1], 1) + 1.0, 4.0, 12.0)))
+    ax.set_anchor("W")
+    finite = image[np.isfinite(image)]
+    low, high = np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0)
+    ax.imshow(np.ma.masked_invalid(image), cmap="gray", vmin=low, vmax=high, interpolation="nearest",
+              extent=(0.5, image.shape[1] + 0.5, image.shape[0] + 0.5, 0.5))
+    pixel, scan = coast_in_image(model, coastline, image.shape)
+    ax.plot(pixel, scan, color="yellow", lw=0.7, gid=COASTLINE_GID, label="coastline (GSHHG) through the model")
+    if control is not None:
+        px, sc = (np.asarray(v, float) for v in control[:2])
+        ax.scatter(px, sc, marker="+", s=60, color="C3", lw=1.2, zorder=3, gid=CONTROL_GID,
+                   label="control points (measured)")
+        for name, x, y in zip(control[2] if len(control) > 2 else (), px, sc, strict=False):
+            ax.annotate(str(name), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7, color="C3")
+    ax.set_xlim(0.5, image.shape[1] + 0.5)
+    ax.set_ylim(image.shape[0] + 0.5, 0.5)
+    ax.set_xlabel("pixel")
+    ax.set_ylabel("scan line")
+    ax.set_title(title or "Coastline overlay of the rectification", fontsize=9)
+    _legend_outside(ax)
+    return fig
+
+
+def plot_coastline_overlay(path: str | os.PathLike, image, model, coastline, control=None, title: str = "") -> Path:
+    """Write :func:`coastline_overlay_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(coastline_overlay_figure(image, model, coastline, control, title), path)

@@ -1,4 +1,5 @@
-"""Image archives on Dask (``dask.distributed``): ``seaice remap --workers N`` or ``--scheduler ADDRESS``.
+"""Image archives on Dask (``dask.distributed``): ``seaice remap`` and ``seaice track`` with ``--workers N`` or
+``--scheduler ADDRESS``.
 
 The single-process :func:`~seaice_jax.workflows.image_sequence.run_remap` holds every image of a sequence in memory.
 Here every image is one task: a worker reads it (:func:`~seaice_jax.io.sequence.read_sequence_image`), fits its scan
@@ -8,6 +9,13 @@ images it works on at once (one per thread), not by the archive. Dask schedules 
 again the tasks of a worker that dies. The client then streams the per-image pixels into ``remapped.npz`` one image
 at a time and writes the summary files; every file equals the single-process one (same numbers, bit for bit: the
 per-image computation is the same code on the same data).
+
+``seaice track`` likewise makes every consecutive pair of images one task (:func:`track_image_pair`): the client
+unpacks the pixels of ``remapped.npz`` once into ``.npy`` files in the staging folder (streamed), a task reads the
+two images it needs from them (memory-mapped), tracks the pair and writes its drift files. Following the floes is a
+chain through the whole sequence (each step starts where the last ended), so it stays in the client, reading the
+images one pair at a time from the same memory maps while the tasks run; the client then writes the sequence-wide
+files (``floes.csv``, the GeoJSON).
 
 The output folder policy holds (:func:`~seaice_jax.outputs.output_folder`): the staging folder lies beside the
 target and becomes it only when the run is complete; a failed or interrupted run cancels its tasks and waits for the
@@ -20,11 +28,12 @@ Dask is imported only here; the default single-machine path never loads it.
 import contextlib
 import json
 import os
+import shutil
 import sys
 import time
 import zipfile
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import cast
 
@@ -36,12 +45,29 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
 from seaice_jax.imagery.remap import remap
+from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
 from seaice_jax.outputs import check_output, output_folder
 from seaice_jax.report.figures import plot_remapped
 from seaice_jax.timefmt import time_after
-from seaice_jax.workflows.image_sequence import Rectification, Step, geolocation_sigma, rectify_images
+from seaice_jax.workflows.image_sequence import (
+    Rectification,
+    RemappedStack,
+    Step,
+    TrackedPair,
+    TrackedSequence,
+    follow_floes,
+    geolocation_sigma,
+    land_of_grid,
+    load_remapped,
+    make_lattice,
+    rectify_images,
+    track_pair,
+    track_report,
+    write_pair,
+    write_tracked,
+)
 
 _UNKNOWNS = len(SCAN_UNKNOWNS)
 PARTS = ".parts"
@@ -325,3 +351,132 @@ def run_remap_archive(project_path: str | os.PathLike, out_dir: str | os.PathLik
         result, files = remap_archive(client, project_path, folder.path, method, fill, progress)
         files = folder.final(files)
     return Step(files, archive_report(result, method, fill), result)
+
+
+# ------------------------------------------------------------------------------------------------ track
+
+PIXELS = ("values", "valid", "sigma")
+"""The per-image arrays of ``remapped.npz`` that a tracking run unpacks into its staging folder's :data:`PARTS`."""
+
+
+def staged_stack(remapped_dir: str | os.PathLike, parts: str | os.PathLike) -> RemappedStack:
+    """The stack written by ``seaice remap`` into ``remapped_dir``, its :data:`PIXELS` unpacked from
+    ``remapped.npz`` into ``.npy`` files in ``parts`` (streamed: a few MB in memory whatever the archive's size) and
+    memory-mapped from there.
+
+    Raises:
+        SeaiceError: naming ``remapped.npz``: missing, truncated, or not a remapped stack of two or more images.
+    """
+    path, parts = Path(remapped_dir) / "remapped.npz", Path(parts)
+    if not path.exists():
+        raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
+    parts.mkdir(exist_ok=True)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for name in PIXELS:
+                with archive.open(f"{name}.npy") as source, open(parts / f"{name}.npy", "wb") as target:
+                    shutil.copyfileobj(source, target, 1 << 24)
+        pixels = {name: np.load(parts / f"{name}.npy", mmap_mode="r") for name in PIXELS}
+    except (KeyError, zipfile.BadZipFile, EOFError, ValueError, OSError) as error:
+        raise SeaiceError(f"{path}: truncated or not a remapped stack ({error}); run `seaice remap` again") from None
+    stack = load_remapped(remapped_dir, pixels)
+    if len(stack.names) < 2:
+        raise SeaiceError(f"{path}: tracking needs at least two images, got {len(stack.names)}")
+    return stack
+
+
+def _pair_outline(stack: RemappedStack, first: int) -> RemappedStack:
+    """Images ``first`` and ``first + 1`` of ``stack`` without their pixels (zero images: the task reads them), with
+    the ``(10, 10)`` covariance of their unknowns: what the client sends a task."""
+    none = np.zeros((0, *stack.grid.shape))
+    return RemappedStack(none, none.astype(bool), np.array(stack.times[first:first + 2]),
+                         stack.names[first:first + 2], stack.epoch, stack.grid, stack.grid_spec,
+                         stack.models[first:first + 2], np.array(stack.pair_covariance(first)), none)
+
+
+def track_image_pair(outline: RemappedStack, first: int, parts: str | os.PathLike, staging: str | os.PathLike,
+                     lattice, options: TrackingOptions, tracking_sigma: float, on_land=None,
+                     layout: str = "project") -> tuple[TrackedPair, list[Path]]:
+    """The task of one pair: read images ``first`` and ``first + 1`` from the unpacked pixels (``parts``:
+    :func:`staged_stack`) into ``outline`` (:func:`_pair_outline`), track them
+    (:func:`~seaice_jax.workflows.image_sequence.track_pair`) and write the pair's files into ``staging``
+    (:func:`~seaice_jax.workflows.image_sequence.write_pair`). Idempotent (files written atomically).
+
+    Returns:
+        ``(pair, files)``: the tracked pair (``first`` its index in the sequence) and the files written.
+    """
+    pixels = {name: np.array(np.load(Path(parts) / f"{name}.npy", mmap_mode="r")[first:first + 2])
+              for name in PIXELS}
+    pair_stack = replace(outline, **pixels)
+    pair = track_pair(pair_stack, 0, options, tracking_sigma, on_land)
+    files = write_pair(pair_stack, lattice, pair, Path(staging), layout)
+    return replace(pair, first=first), files
+
+
+def track_archive(client: Client, stack: RemappedStack, staging: str | os.PathLike,
+                  options: TrackingOptions | None = None, tracking_sigma: float = 0.2, layout: str = "project",
+                  land=None, progress: bool = False) -> tuple[TrackedSequence, tuple[Path, ...]]:
+    """Track every pair of consecutive images of ``stack`` (from :func:`staged_stack` into ``staging``) as one Dask
+    task (:func:`track_image_pair`), follow the floes through the sequence in this process meanwhile
+    (:func:`~seaice_jax.workflows.image_sequence.follow_floes`: a chain), and write the sequence-wide files;
+    arguments as :func:`~seaice_jax.workflows.image_sequence.track_sequence` and
+    :func:`~seaice_jax.workflows.image_sequence.write_tracked`.
+
+    Returns:
+        ``(tracked, files)``: the files those of :func:`~seaice_jax.workflows.image_sequence.write_tracked`, in its
+        order.
+    """
+    options = options or TrackingOptions()
+    staging = Path(staging)
+    rows, columns = grid_points(stack.grid.shape, options)
+    on_land = None if land is None else np.asarray(land, bool)[rows.astype(int), columns.astype(int)]
+    lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
+    count = len(stack.names) - 1
+    futures = client.map(track_image_pair, [_pair_outline(stack, k) for k in range(count)], range(count),
+                         parts=str(staging / PARTS), staging=str(staging), lattice=lattice, options=options,
+                         tracking_sigma=tracking_sigma, on_land=on_land, layout=layout, pure=False)
+    pairs: list[TrackedPair | None] = [None] * count
+    written: list[list[Path]] = [[] for _ in range(count)]
+    try:
+        records = follow_floes(stack, rows, columns, options, progress, on_land)
+        with tqdm(total=count, desc="track (dask)", disable=not progress, leave=False) as bar:
+            for future in as_completed(futures):
+                pair, files = future.result()
+                pairs[pair.first], written[pair.first] = pair, files
+                future.release()
+                bar.update()
+    except BaseException:  # a task's error, or an interrupt: no task may write into the staging folder after this
+        _stop(client, futures)
+        raise
+    tracked = TrackedSequence(tuple(pair for pair in pairs if pair is not None), lattice, records, options)
+    files = [path for pair_files in written for path in pair_files]
+    files += write_tracked(stack, replace(tracked, pairs=()), staging, layout)
+    shutil.rmtree(staging / PARTS)
+    return tracked, tuple(files)
+
+
+def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: TrackingOptions | None = None,
+                      tracking_sigma: float = 0.2, progress: bool = True, overwrite: bool = False,
+                      layout: str = "project", land: str | os.PathLike | None = None, workers: int | None = None,
+                      scheduler: str | None = None) -> Step[TrackedSequence]:
+    """:func:`~seaice_jax.workflows.image_sequence.run_track` on Dask (:func:`dask_client`: ``workers`` local
+    processes, or the cluster at ``scheduler``) for the folder of ``seaice remap``: the same files in ``out_dir``,
+    written as one run (the stack, the land mask and the target are checked before the cluster starts).
+
+    Raises:
+        SeaiceError: ``remapped_dir`` a list of GeoTIFF files (tracked by the single-process run only), or as
+            :func:`dask_client`, :func:`staged_stack` and
+            :func:`~seaice_jax.workflows.image_sequence.land_of_grid`.
+    """
+    if isinstance(remapped_dir, list | tuple):
+        raise SeaiceError("--workers/--scheduler: give the folder of `seaice remap`; GeoTIFF files are tracked by "
+                          "the single-process run (drop --workers/--scheduler)")
+    check_cluster_options(workers, scheduler)
+    with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
+        stack = staged_stack(remapped_dir, folder.path / PARTS)
+        mask = None if land is None else land_of_grid(land, stack.grid)
+        with dask_client(workers, scheduler) as client:
+            tracked, files = track_archive(client, stack, folder.path, options, tracking_sigma, layout, mask,
+                                           progress)
+        files = folder.final(files)
+    return Step(files, track_report(stack, tracked), tracked)

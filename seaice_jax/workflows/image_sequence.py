@@ -41,7 +41,8 @@ from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
 from seaice_jax.imagery.movie import render_frames, write_movie
 from seaice_jax.imagery.remap import remap
-from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, track
+from seaice_jax.imagery.tracking import GOOD, NO_DATA, STATUS, TrackingOptions, grid_points, track
+from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.products import (
     read_geotiff,
     write_drift_netcdf,
@@ -66,6 +67,7 @@ from seaice_jax.report.figures import (
     plot_vectors,
     plot_velocity_series,
 )
+from seaice_jax.report.maps import map_overlay
 from seaice_jax.simulate.satellite import land_mask, scene_xy, simulate_sequence, true_displacement
 from seaice_jax.timefmt import format_time, parse_time, time_after
 
@@ -297,16 +299,18 @@ def load_models(path: str | os.PathLike, project: SequenceProject):
     return models, covariance, float(stored["sigma0"])
 
 
-def load_remapped(directory: str | os.PathLike) -> RemappedStack:
-    """The stack written by :func:`run_remap` into ``directory``, with its grid and scan models rebuilt."""
+def load_remapped(directory: str | os.PathLike, pixels: dict | None = None) -> RemappedStack:
+    """The stack written by :func:`run_remap` into ``directory``, with its grid and scan models rebuilt; ``pixels``:
+    arrays taken instead of the stored ones of those names (e.g. memory maps of ``values``, ``valid``, ``sigma``)."""
     path = Path(directory) / "remapped.npz"
     if not path.exists():
         raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
     try:
         with np.load(path, allow_pickle=False) as data:
-            stored = {k: data[k] for k in data.files}
+            stored = {k: data[k] for k in data.files if k not in (pixels or {})}
     except (zipfile.BadZipFile, EOFError, ValueError, OSError) as error:
         raise SeaiceError(f"{path}: truncated or not a remapped stack ({error}); run `seaice remap` again") from None
+    stored.update(pixels or {})
     missing = [k for k in _STORED if k not in stored]
     if missing:
         raise SeaiceError(f"{path}: no {', '.join(missing)} (written by another version?): run `seaice remap` again")
@@ -475,10 +479,14 @@ class TrackedSequence:
     options: TrackingOptions
 
 
-def _track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking_sigma: float) -> TrackedPair:
+def track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking_sigma: float,
+               on_land=None) -> TrackedPair:
+    """The drift from image ``k`` of ``stack`` to ``k + 1``, as :func:`track_sequence` tracks each pair (``on_land``:
+    ``(n,)`` bool per lattice point, True: status ``NO_DATA``)."""
     pair = track(stack.values[k], stack.values[k + 1], options, valid_first=stack.valid[k],
                  valid_second=stack.valid[k + 1])
-    good = pair.good
+    status = pair.status if on_land is None else np.where(on_land, NO_DATA, pair.status)
+    good = status == GOOD
     vectors = pair.in_map(stack.grid)
     x, y, dx, dy = (vectors[key] for key in ("x", "y", "dx", "dy"))
     if stack.models:
@@ -496,16 +504,17 @@ def _track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking
         rates = deformation(np.stack([x, y], 1)[index], np.stack([dx, dy], 1)[index] / interval,
                             sigma[index] / interval)  # (relative errors: conservative)
         rates = replace(rates, triangles=index[rates.triangles])
-    return TrackedPair(k, interval, pair.status, x, y, dx, dy, sigma, east, north, rates)
+    return TrackedPair(k, interval, status, x, y, dx, dy, sigma, east, north, rates)
 
 
-def _follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, progress: bool) -> FloeRecords:
+def follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, progress: bool,
+                 on_land=None) -> FloeRecords:
     """Floe records of the lattice points of the first image, followed from image to image while their tracking
     stays good: grid position -> latitude, longitude and each image's own pixel and scan line (the grid's 1-based
     column and row for images without a scan model)."""
     floe_row, floe_column = rows.copy(), columns.copy()
-    alive = np.ones(rows.size, bool)
-    fixes = [(np.arange(rows.size), 0, rows.copy(), columns.copy())]
+    alive = np.ones(rows.size, bool) if on_land is None else ~on_land
+    fixes = [(np.nonzero(alive)[0], 0, rows[alive], columns[alive])]
     for k in tqdm(range(len(stack.names) - 1), desc="follow floes", disable=not progress, leave=False):
         chained = track(stack.values[k], stack.values[k + 1], options, points=(floe_row, floe_column),
                         valid_first=stack.valid[k], valid_second=stack.valid[k + 1])
@@ -530,17 +539,20 @@ def _follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions,
 
 
 def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
-                   progress: bool = False) -> TrackedSequence:
+                   progress: bool = False, land=None) -> TrackedSequence:
     """Track the ice between consecutive remapped images (``tracking_sigma``: pixels, σ of a tracked
-    displacement, combined with both images' geolocation σ)."""
+    displacement, combined with both images' geolocation σ; ``land``: ``(n_rows, n_columns)`` bool on the grid,
+    True on land: no vector starts and no floe is followed from a lattice point on land (status ``NO_DATA``),
+    while patches at sea may reach over the coast)."""
     options = options or TrackingOptions()
     if len(stack.names) < 2:
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
     rows, columns = grid_points(stack.grid.shape, options)
+    on_land = None if land is None else np.asarray(land, bool)[rows.astype(int), columns.astype(int)]
     lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
-    pairs = tuple(_track_pair(stack, k, options, tracking_sigma)
+    pairs = tuple(track_pair(stack, k, options, tracking_sigma, on_land)
                   for k in tqdm(range(len(stack.names) - 1), desc="track", disable=not progress, leave=False))
-    return TrackedSequence(pairs, lattice, _follow_floes(stack, rows, columns, options, progress), options)
+    return TrackedSequence(pairs, lattice, follow_floes(stack, rows, columns, options, progress, on_land), options)
 
 
 def track_report(stack: RemappedStack, tracked: TrackedSequence) -> str:
@@ -558,7 +570,7 @@ def track_report(stack: RemappedStack, tracked: TrackedSequence) -> str:
     return "\n".join(lines)
 
 
-def _write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: Path, layout: str) -> list[Path]:
+def write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: Path, layout: str) -> list[Path]:
     """``drift_<a>_<b>.nc`` (CF-NetCDF on the lattice), its figure ``drift_<a>_<b>.png`` and, for ``layout``
     ``"osisaf"``, ``drift_<a>_<b>_osisaf.nc`` in the OSI SAF drift layout."""
     good, shape = pair.good, lattice.shape
@@ -590,7 +602,7 @@ def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str |
     """Per pair ``drift_<a>_<b>.nc`` and ``.png`` (vectors with 95 % ellipses); ``floes.csv`` and
     ``trajectories.geojson`` (lines) and ``fixes.geojson`` (points) for the whole sequence."""
     out = Path(out_dir)
-    files = [path for pair in tracked.pairs for path in _write_pair(stack, tracked.lattice, pair, out, layout)]
+    files = [path for pair in tracked.pairs for path in write_pair(stack, tracked.lattice, pair, out, layout)]
     records = tracked.records
     files.append(write_records(out / "floes.csv", records))
     files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
@@ -600,20 +612,36 @@ def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str |
     return tuple(files)
 
 
+def land_of_grid(land: str | os.PathLike, grid: MapGrid) -> np.ndarray:
+    """The land mask on ``grid``: ``"coastline"`` (GSHHG, :func:`~seaice_jax.io.coastline.land_mask_of_grid`) or a
+    ``.npy`` bool array of the grid's shape."""
+    if str(land) == "coastline":
+        return land_mask_of_grid(grid)
+    if not Path(land).is_file():
+        raise SeaiceError(f"{land}: no such land mask (give 'coastline' or a .npy bool array on the grid)")
+    mask = np.load(land)
+    if mask.shape != grid.shape or mask.dtype != bool:
+        raise SeaiceError(f"{land}: a land mask must be a bool array of the grid's shape {grid.shape}, got "
+                          f"{mask.dtype} {mask.shape}")
+    return mask
+
+
 def run_track(remapped_dir, out_dir: str | os.PathLike, options: TrackingOptions | None = None,
               tracking_sigma: float = 0.2, progress: bool = True, overwrite: bool = False, layout: str = "project",
-              times=None) -> Step[TrackedSequence]:
+              times=None, land: str | os.PathLike | None = None) -> Step[TrackedSequence]:
     """Track the ice (:func:`track_sequence`) through the stack written by :func:`run_remap` (``remapped_dir``: its
     folder) or through GeoTIFFs of one grid made elsewhere (``remapped_dir``: a list of files, ``times`` their ISO
     8601 times unless their DateTime tags give them: :func:`geotiff_stack`), and write it (:func:`write_tracked`,
-    ``layout`` ``"project"`` or ``"osisaf"``) as one run (:func:`~seaice_jax.outputs.output_folder`)."""
+    ``layout`` ``"project"`` or ``"osisaf"``) as one run (:func:`~seaice_jax.outputs.output_folder`); ``land``:
+    ``"coastline"`` or a ``.npy`` mask (:func:`land_of_grid`): no vector starts on its land."""
     files_given = isinstance(remapped_dir, list | tuple)
     inputs = tuple(remapped_dir) if files_given else (remapped_dir,)
     with output_folder(out_dir, overwrite, inputs=inputs) as folder:
         stack = geotiff_stack(remapped_dir, times) if files_given else load_remapped(remapped_dir)
         if len(stack.names) < 2:
             raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
-        tracked = track_sequence(stack, options, tracking_sigma, progress)
+        tracked = track_sequence(stack, options, tracking_sigma, progress,
+                                 None if land is None else land_of_grid(land, stack.grid))
         files = folder.final(write_tracked(stack, tracked, folder.path, layout))
     return Step(files, track_report(stack, tracked), tracked)
 
@@ -630,6 +658,7 @@ class FloeKinematics:
         boxes: box averages (Figure 4-7). series: daily box series (Figure 4-5). box_size: m.
         deformation: ``(time, interval, rates)`` (s, s, the triangles' strain rates) per fix time with at least
             three floes.
+        projection: the map projection of ``x``, ``y`` (for the maps' coastline and graticule).
     """
 
     records: FloeRecords
@@ -640,6 +669,7 @@ class FloeKinematics:
     series: dict
     box_size: float
     deformation: tuple[tuple[float, float, Deformation], ...]
+    projection: object = None
 
 
 def _deformations(v: Velocities, velocity_sigma: float | None):
@@ -669,7 +699,7 @@ def floe_kinematics(records: FloeRecords, projection: str = "nsidc-north", box_s
     v = velocities(records.floe, records.time, x, y, metric)
     origin = (np.floor(v.x.min() / box_size) * box_size, np.floor(v.y.min() / box_size) * box_size)
     return FloeKinematics(records, x, y, v, box_averages(v.x, v.y, v.u_grid, v.v_grid, box_size, origin),
-                          box_time_series(v, box_size, origin), box_size, _deformations(v, velocity_sigma))
+                          box_time_series(v, box_size, origin), box_size, _deformations(v, velocity_sigma), metric)
 
 
 def _deformation_columns(result: FloeKinematics) -> dict:
@@ -702,7 +732,8 @@ def write_kinematics(result: FloeKinematics, out_dir: str | os.PathLike) -> tupl
                                              "v_grid_m_s": boxes.v, "sigma_u_m_s": boxes.sigma_u,
                                              "sigma_v_m_s": boxes.sigma_v, "count": boxes.count}),
         plot_box_averages(out / "box_averages.png", boxes, f"Box-averaged velocity ({result.box_size / 1000:.0f} "
-                          "km boxes) with ±1σ rectangles", background=np.stack([result.x, result.y], 1))]
+                          "km boxes) with ±1σ rectangles", background=np.stack([result.x, result.y], 1),
+                          projection=result.projection)]
     busiest = dict(sorted(result.series.items(), key=lambda item: -item[1]["count"].sum())[:6])
     files.append(plot_velocity_series(out / "velocity_series.png", busiest, "Daily box-averaged velocity",
                                       records.epoch[:10]))
@@ -713,7 +744,7 @@ def write_kinematics(result: FloeKinematics, out_dir: str | os.PathLike) -> tupl
     files.append(write_fixes_geojson(out / "fixes.geojson", records.floe, records.time, records.latitude,
                                      records.longitude, records.epoch))
     files.append(plot_trajectories(out / "trajectories.png", records.floe, result.x, result.y,
-                                   "Floe trajectories (start: dot)"))
+                                   "Floe trajectories (start: dot)", projection=result.projection))
     return tuple(files)
 
 
@@ -753,10 +784,12 @@ def _floe_pixels(records_path, stack: RemappedStack):
 
 
 def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land_mask=None, records=None,
-              fps: float = 2.0, scale: int = 2, overwrite: bool = False) -> Step[None]:
+              fps: float = 2.0, scale: int = 2, overwrite: bool = False, map_decorations: bool = True) -> Step[None]:
     """A time-lapse film (GIF or MP4) of the remapped sequence with date labels, the land filled (``land_mask``:
-    a ``.npy`` bool array on the grid) and the tracked floes of a record file marked; ``fps`` > 0, ``scale`` >= 1
-    and the film within :data:`~seaice_jax.io.sequence.MEMORY_BUDGET`."""
+    a ``.npy`` bool array on the grid; without one, the GSHHG land) and the tracked floes of a record file marked;
+    with ``map_decorations`` the coastline, a labelled graticule and a scale bar
+    (:func:`~seaice_jax.report.maps.map_overlay`); ``fps`` > 0, ``scale`` >= 1 and the film within
+    :data:`~seaice_jax.io.sequence.MEMORY_BUDGET`."""
     if not (np.isfinite(fps) and fps > 0 and int(scale) == scale and scale >= 1):
         raise SeaiceError(f"film: fps must be > 0 and scale an integer >= 1, got fps {fps}, scale {scale}")
     stack = load_remapped(remapped_dir)
@@ -772,7 +805,8 @@ def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land
             raise SeaiceError(f"{land_mask}: land mask shape {land.shape} is not the grid's {stack.grid.shape}")
     points = None if records is None else _floe_pixels(records, stack)
     labels = [time_after(stack.epoch, t)[:16].replace("T", " ") for t in stack.times]
-    frames = render_frames(stack.values, labels, land, points, scale)
+    overlay = map_overlay(stack.grid, int(scale), land=land is None) if map_decorations else None
+    frames = render_frames(stack.values, labels, land, points, scale, overlay)
     with output_file(out_path, overwrite, inputs=(remapped_dir,)) as staging:
         path, = staging.final([write_movie(staging.path / staging.target.name, frames, fps)])
     return Step((path,), f"film of {len(frames)} frames ({frames.shape[2]} x {frames.shape[1]} pixels) -> {path}",

@@ -21,6 +21,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 from seaice_jax.imagery.ties import TieOptions, TiePoints, find_ties, grid_mask
+from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.sequence import MODEL_KEYS, SequenceProject, read_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.workflows.image_sequence import Step, rectify_images, save_models
@@ -50,11 +51,14 @@ class AdjustedSequence:
     adjustment: SequenceAdjustment | None = None
 
 
-def static_mask_path(project: SequenceProject, static: str | os.PathLike | None) -> Path:
+def static_mask_path(project: SequenceProject, static: str | os.PathLike | None) -> Path | None:
     """The static-surface mask: ``static``, else ``static_mask.npy`` or ``land_mask.npy`` beside the project (as
-    ``seaice simulate lancaster`` writes them)."""
+    ``seaice simulate lancaster`` writes them), else ``None``: the coastline's land is then the static surface
+    (:func:`~seaice_jax.io.coastline.land_mask_of_grid`)."""
     beside = [project.path.parent / name for name in ("static_mask.npy", "land_mask.npy")]
-    path = Path(static) if static is not None else next((p for p in beside if p.exists()), beside[-1])
+    if static is None:
+        return next((p for p in beside if p.exists()), None)
+    path = Path(static)
     if not path.exists():
         raise SeaiceError(f"{path}: no static-surface mask (a .npy bool array on the project's grid: land and fast "
                           "ice); give one with --static")
@@ -151,8 +155,11 @@ def run_adjust(project_path: str | os.PathLike, out_dir: str | os.PathLike, meth
     mask = None
     if method == "simultaneous":
         mask_path = static_mask_path(project, static)
-        inputs += (mask_path,)
-        mask = np.load(mask_path)
+        if mask_path is None:
+            mask = land_mask_of_grid(project.grid)
+        else:
+            inputs += (mask_path,)
+            mask = np.load(mask_path)
         if mask.shape != project.grid.shape:
             raise SeaiceError(f"{mask_path}: shape {mask.shape} differs from the project's grid {project.grid.shape}")
     with output_folder(out_dir, overwrite, inputs=inputs) as folder:
