@@ -11,7 +11,6 @@ import os
 import sys
 import time
 import traceback
-from contextlib import nullcontext
 from pathlib import Path
 
 from seaice_jax import __version__
@@ -93,39 +92,21 @@ def _demo(args) -> int:
 
 
 def _rectify(args) -> int:
-    import numpy as np
+    from seaice_jax.report.text import orbit_fit_report
+    from seaice_jax.workflows.rectify import RoughOrbit, run_rectify
 
-    from seaice_jax.adjust.orbit_fit import fit_scan_model
-    from seaice_jax.files import write_json
-    from seaice_jax.geometry.earth import SIDEREAL_DAY
-    from seaice_jax.geometry.scan import satellite_orbit
-    from seaice_jax.io.stations import check_in_image, control_points, read_agrid, read_measurements
-    from seaice_jax.outputs import output_file
-    from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
-
-    catalogue = read_agrid(args.stations) if args.stations else None
-    measurements = read_measurements(args.measurements, catalogue)
-    check_in_image(measurements, args.pixels, args.scans, args.measurements)
-    control = control_points(measurements, args.sigma)
-    check = None
-    if args.check:
-        check = control_points(read_measurements(args.check, catalogue), args.sigma)
-    orbit = satellite_orbit(
-        args.satellite,
-        altitude=None if args.altitude is None else args.altitude * 1000.0,
-        earth_day=SIDEREAL_DAY if args.earth_day is None else args.earth_day * 60.0,
-        period=None if args.period is None else args.period * 60.0,
-        max_latitude=None if args.max_latitude is None else np.radians(args.max_latitude),
-    )
-    json_file = output_file(args.json, args.overwrite, inputs=(args.measurements,)) if args.json else nullcontext()
-    with json_file as staging:
-        fit = fit_scan_model(control, orbit, direction=args.direction, n_pixels=args.pixels, n_scans=args.scans,
-                             method=args.method)
-        _say(args, orbit_fit_report(fit, check, names={m.id: m.name for m in measurements}))
-        if staging is not None:
-            write_json(staging.path / staging.target.name, orbit_fit_json(fit, check))
-    if args.json:
-        _say(args, f"wrote {args.json}")
+    rough = None
+    if args.node is not None and args.pass_minutes is not None:
+        rough = RoughOrbit(args.node, args.pass_minutes, args.scanner_span, args.orbital_span, args.subtrack)
+    result = run_rectify(
+        args.measurements, satellite=args.satellite, altitude_km=args.altitude, max_latitude=args.max_latitude,
+        period_minutes=args.period, earth_day_minutes=args.earth_day, direction=args.direction, method=args.method,
+        sigma_km=args.sigma, n_pixels=args.pixels, n_scans=args.scans, stations=args.stations, check=args.check,
+        json_path=args.json, image=args.image, auto_control=args.auto_control, rough=rough, search=args.search,
+        overlay=args.overlay, overwrite=args.overwrite, say=_stages(args))
+    _say(args, orbit_fit_report(result.fit, result.check, names=result.names))
+    for path in result.written:
+        _say(args, f"wrote {path}")
     return EXIT_OK
 
 
@@ -177,6 +158,15 @@ def _adjust(args) -> int:
 
 
 def _remap(args) -> int:
+    if args.workers or args.scheduler:  # on Dask (imported only here)
+        from seaice_jax.workflows.archive import run_remap_archive
+
+        step = run_remap_archive(args.project, args.out, method=args.method, fill=args.fill,
+                                 progress=_progress(args), overwrite=args.overwrite, models_path=args.models,
+                                 workers=args.workers, scheduler=args.scheduler)
+        _say(args, step.report)
+        _say(args, f"wrote {len(step.files)} files into {args.out}")
+        return EXIT_OK
     from seaice_jax.workflows.image_sequence import run_remap
 
     step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=_progress(args),
@@ -196,8 +186,17 @@ def _track(args) -> int:
     geotiffs = len(sources) > 1 or Path(sources[0]).suffix.lower() in (".tif", ".tiff")
     if not geotiffs and args.times:
         raise SeaiceError("--times is for GeoTIFF files; a folder of `seaice remap` has its own times")
-    step = run_track(sources if geotiffs else sources[0], args.out, options, tracking_sigma=args.tracking_sigma,
-                     progress=_progress(args), layout=args.layout, overwrite=args.overwrite, times=args.times)
+    if args.workers or args.scheduler:  # on Dask (imported only here)
+        from seaice_jax.workflows.archive import run_track_archive
+
+        step = run_track_archive(sources if geotiffs else sources[0], args.out, options,
+                                 tracking_sigma=args.tracking_sigma, progress=_progress(args), layout=args.layout,
+                                 overwrite=args.overwrite, land=args.land, workers=args.workers,
+                                 scheduler=args.scheduler)
+    else:
+        step = run_track(sources if geotiffs else sources[0], args.out, options, tracking_sigma=args.tracking_sigma,
+                         progress=_progress(args), layout=args.layout, overwrite=args.overwrite, times=args.times,
+                         land=args.land)
     _say(args, step.report)
     _say(args, f"wrote {len(step.files)} files into {args.out}")
     return EXIT_OK
@@ -254,7 +253,7 @@ def _sequence_commands(commands, common) -> None:
                              "control points (the 1985 practice)")
     adjust.add_argument("--static", help=".npy bool array on the project's grid, True on land and fast ice (where "
                                          "ties are sought); default: static_mask.npy, else land_mask.npy beside the "
-                                         "project")
+                                         "project, else the GSHHG coastline's land on the grid")
     adjust.set_defaults(run=_adjust)
 
     remap = _command(commands, common, "remap", "rectify an image-sequence project and remap it into its map grid")
@@ -267,6 +266,10 @@ def _sequence_commands(commands, common) -> None:
     remap.add_argument("--fill", type=_in_range(int, 0, 1000), default=1,
                        help="passes of the 1985 fill over missing pixels (each pass gives a missing pixel the mean "
                             "of its valid neighbours; 0: none)")
+    remap.add_argument("--workers", type=_in_range(int, 1, 10_000), help="run on a local Dask cluster of this many "
+                       "worker processes, one image per task (default: one process, no Dask)")
+    remap.add_argument("--scheduler", help="run on the running Dask cluster at this address (tcp://host:8786); its "
+                       "workers must see the project and the output's folder at the same paths")
     remap.set_defaults(run=_remap)
 
     track = _command(commands, common, "track", "track the ice between consecutive remapped images",
@@ -287,10 +290,16 @@ def _sequence_commands(commands, common) -> None:
                        help="features: ORB matches and a RANSAC similarity transform predict the motion")
     track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.2,
                        help="σ (standard deviation) of a tracked displacement, pixels")
+    track.add_argument("--land", help="land where no vector starts and no floe is followed: 'coastline' (GSHHG full "
+                                      "resolution, offline) or a .npy bool array on the grid")
     track.add_argument("--layout", choices=["project", "osisaf"], default="project",
                        help="osisaf: also write each pair as drift_<a>_<b>_osisaf.nc in the layout of the OSI SAF "
                             "(EUMETSAT Ocean and Sea Ice Satellite Application Facility) low-resolution drift "
                             "product (dX, dY in km, uncert_dX_and_dY, dt0/dt1, OSI SAF status codes)")
+    track.add_argument("--workers", type=_in_range(int, 1, 10_000), help="run on a local Dask cluster of this many "
+                       "worker processes, one image pair per task (default: one process, no Dask)")
+    track.add_argument("--scheduler", help="run on the running Dask cluster at this address (tcp://host:8786); its "
+                       "workers must see the remapped folder and the output's folder at the same paths")
     track.set_defaults(run=_track)
 
     speeds = _command(commands, common, "velocities", "velocities, box averages, time series, deformation and "
@@ -401,8 +410,8 @@ def build_parser() -> argparse.ArgumentParser:
         "images) to control points of known latitude and longitude, and print a report in the layout of the 1985 "
         "line printer (Figure 3-3) with the parameters' covariance and w-tests (Baarda's data snooping: a "
         "standardised residual beyond its critical value flags a point).")
-    rectify.add_argument("measurements", help="CSV: id,name,pixel,scan,lat,lon (degrees) [,sigma_km], or "
-                                              "id,pixel,scan with --stations")
+    rectify.add_argument("measurements", nargs="?", help="CSV: id,name,pixel,scan,lat,lon (degrees) [,sigma_km], or "
+                                                         "id,pixel,scan with --stations (optional with --auto-control)")
     rectify.add_argument("--stations", help="AGRID station catalogue (the 1985 fixed-column file of numbered "
                                             "stations with latitude and longitude in degrees and minutes) to take "
                                             "the positions from")
@@ -424,6 +433,24 @@ def build_parser() -> argparse.ArgumentParser:
     rectify.add_argument("--check", help="CSV of check points: known positions, not used in the fit")
     rectify.add_argument("--json", help="also write the report as JSON here, with what rebuilds the model and its "
                                         "covariance (orbit, image size, unknowns, units)")
+    rectify.add_argument("--image", help="the image (.npy, .tif, .png; scan lines x pixels): writes the coastline "
+                                         "overlay of the fit, and is what --auto-control matches")
+    rectify.add_argument("--overlay", help="PNG of the coastline overlay (default: IMAGE-stem_overlay.png beside "
+                                           "--json, else in the current folder)")
+    rectify.add_argument("--auto-control", action="store_true",
+                         help="find control points on the coastline (GSHHG) from the rough orbit (--node, "
+                              "--pass-minutes); manual points, if given, join them")
+    rectify.add_argument("--node", type=_in_range(float, -360.0, 360.0),
+                         help="rough longitude of the ascending node, degrees east (--auto-control)")
+    rectify.add_argument("--pass-minutes", type=_in_range(float, 0.0, 1000.0),
+                         help="rough minutes from the ascending node to the first scan line (--auto-control)")
+    rectify.add_argument("--scanner-span", type=_POSITIVE, default=6.9607,
+                         help="degrees from pixel 1 to the last pixel (default: the 1985 blow-up of Figure 3-3)")
+    rectify.add_argument("--orbital-span", type=_POSITIVE, default=4.6088,
+                         help="degrees of orbit from the first to the last scan line (default: Figure 3-3's)")
+    rectify.add_argument("--subtrack", type=float, help="subtrack pixel of the rough orbit (default: the middle)")
+    rectify.add_argument("--search", type=_in_range(int, 2, 1000), default=32,
+                         help="± pixels the coast is sought around the rough orbit's prediction")
     rectify.set_defaults(run=_rectify)
 
     simulate = _command(commands, common, "simulate", "write a simulated radar project (TOML + CSV) with its truth, "

@@ -38,7 +38,7 @@ def test_remapping_with_the_true_model_reproduces_the_ground_to_subpixel(sequenc
         assert abs(error.mean()) < 0.005 and np.sqrt(np.mean(error**2)) < 0.08  # interpolation of ~5 km pixels
         shift, _ = cv2.phaseCorrelate(np.where(ok, truth, 0).astype(np.float32),
                                       np.where(ok, values[k], 0).astype(np.float32))
-        assert np.hypot(*shift) < 0.1  # registration against truth: sub-pixel
+        assert np.hypot(shift[0], shift[1]) < 0.1  # registration against truth: sub-pixel
 
 
 def test_a_wrong_node_shows_as_a_shift(sequence):
@@ -53,7 +53,7 @@ def test_a_wrong_node_shows_as_a_shift(sequence):
     truth = truth_on(grid, sequence.scene, image.time)
     shift, _ = cv2.phaseCorrelate(np.where(valid[0], truth, 0).astype(np.float32),
                                   np.where(valid[0], values[0], 0).astype(np.float32))
-    assert np.hypot(*shift) > 0.7
+    assert np.hypot(shift[0], shift[1]) > 0.7
 
 
 def test_vmapped_batch_equals_one_by_one_and_both_pass_directions(sequence):
@@ -202,15 +202,22 @@ def tracking_truth(sequence, grid, d, first, second):
     return rows - d.row, columns - d.column, uniform
 
 
-@pytest.mark.parametrize("first_guess", ["zero", "features"])
-def test_tracking_recovers_the_motion_field_on_clear_images(first_guess):
+@pytest.fixture(scope="module")
+def clear_pair():
+    """Two clear images remapped into one 150 x 150 grid, with their simulation (shared by both first guesses)."""
     sequence = simulate_sequence(1, n_images=2, size=256)
     grid = scene_grid(sequence.scene, 2500.0, 150, 150)
     (a, b), _ = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
+    return sequence, grid, a, b
+
+
+@pytest.mark.parametrize("first_guess", ["zero", "features"])
+def test_tracking_recovers_the_motion_field_on_clear_images(clear_pair, first_guess):
+    sequence, grid, a, b = clear_pair
     d = track(a, b, TrackingOptions(first_guess=first_guess))
     true_row, true_column, uniform = tracking_truth(sequence, grid, d, *sequence.images)
     good = d.good & uniform
-    assert good.sum() > 150
+    assert good.sum() > 100  # pack ice between the real coasts (GSHHG) of Lancaster Sound and Baffin Bay
     assert np.abs(true_column[good]).max() > 1.0  # the ice moved more than a pixel
     error = np.hypot(d.d_row[good] - true_row[good], d.d_column[good] - true_column[good])
     assert np.sqrt(np.mean(error**2)) < 0.3
@@ -221,7 +228,9 @@ def test_quality_flags_reject_cloud_covered_patches():
     grid = scene_grid(sequence.scene, 2500.0, 150, 150)
     (a, b), _ = remap([im.data for im in sequence.images], [im.model for im in sequence.images], grid)
     d = track(a, b)
-    centres, radii = sequence.images[1].clouds
+    clouds = sequence.images[1].clouds
+    assert clouds is not None
+    centres, radii = clouds
     x, y = (np.asarray(v) for v in grid.to_xy(d.row, d.column))
     distance = np.min(np.hypot(x[:, None] - centres[:, 0], y[:, None] - centres[:, 1]) / radii, axis=1)
     under = distance < 0.7
@@ -232,7 +241,7 @@ def test_quality_flags_reject_cloud_covered_patches():
     # radii) some vectors pass the flags with the cloud's motion mixed in (~0.6 pixel here)
     clear = d.good & uniform & (distance > 1.5)
     error = np.hypot(d.d_row[clear] - true_row[clear], d.d_column[clear] - true_column[clear])
-    assert clear.sum() > 80 and np.sqrt(np.mean(error**2)) < 0.3
+    assert clear.sum() > 40 and np.sqrt(np.mean(error**2)) < 0.3  # pack ice between real coasts (GSHHG)
     flat = track(np.full((60, 60), 0.9), np.full((60, 60), 0.9))
     assert (flat.status == LOW_CONTRAST).all() and GOOD not in flat.status
 
@@ -262,7 +271,7 @@ def test_radar_strip_orthorectified_through_the_range_doppler_inverse_reproduces
     assert np.sqrt(np.mean((values[valid] - truth[valid]) ** 2)) < 0.02
     shift, _ = cv2.phaseCorrelate(np.where(valid, truth, 0).astype(np.float32),
                                   np.where(valid, values, 0).astype(np.float32))
-    assert np.hypot(*shift) < 0.1
+    assert np.hypot(shift[0], shift[1]) < 0.1
     # the default approximate transformer + cv2.remap has the exact path's mask and values within its threshold
     exact, exact_valid = orthorectify_strip(raster, navigation, *arguments, strip.look_side, grid, max_error_pixels=0.0)
     np.testing.assert_array_equal(valid, exact_valid)

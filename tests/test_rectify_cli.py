@@ -94,3 +94,45 @@ def test_report_for_appendix_c_has_no_invented_statistics():
     data = orbit_fit_json(fit)
     assert data["sigma0"] is None and data["parameter_sigma"] == {}
     assert "POSITION EVALUATIONS" in orbit_fit_report(fit)
+
+
+def test_rectify_with_the_image_writes_the_coastline_overlay(tmp_path, capsys):
+    image = tmp_path / "noaa7.npy"
+    np.save(image, np.random.default_rng(0).random((512, 512)))
+    out = tmp_path / "fit.json"
+    assert main(["rectify", str(EXAMPLES / "figure_3_3.csv"), "--satellite", "NOAA-7", "--altitude", "0",
+                 "--earth-day", "1440", "--image", str(image), "--json", str(out)]) == 0
+    overlay = tmp_path / "noaa7_overlay.png"
+    assert f"wrote {overlay}" in capsys.readouterr().out
+    assert overlay.stat().st_size > 10_000 and out.exists()
+
+
+def test_rectify_auto_control_from_a_rough_orbit_recovers_the_pass(tmp_path, capsys):
+    """`seaice rectify --image --auto-control` on a simulated image of Lancaster Sound (GSHHG land), from the node
+    0.5° and the pass time 20 km off: the fitted parameters are the true ones to a fraction of a pixel."""
+    import equinox as eqx
+
+    from seaice_jax.report.text import scan_model_from_json
+    from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
+
+    centre = np.radians(73.9), np.radians(-80.5)
+    truth = noaa_pass("south", 240, *centre)
+    truth = place_pass(eqx.tree_at(lambda m: (m.scanner_angle_span, m.orbital_angle_span), truth,
+                                   replace=(0.5 * truth.scanner_angle_span, 0.5 * truth.orbital_angle_span)), *centre)
+    scene = ice_scene(np.random.default_rng(3), 73.9, -80.5, extent=500_000.0)
+    image = tmp_path / "pass.npy"
+    np.save(image, np.asarray(render(scene, truth, 0.0)))
+    minutes = float(truth.orbit.period) / 60.0 / (2 * np.pi)  # minutes per radian of orbit
+    out = tmp_path / "auto.json"
+    assert main(["rectify", "--image", str(image), "--auto-control", "--satellite", "NOAA-7", "--altitude", "0",
+                 "--pixels", "240", "--scans", "240", "--node", f"{np.degrees(float(truth.ascending_node)) + 0.5}",
+                 "--pass-minutes", f"{(float(truth.orbital_angle_first) + 20e3 / 6.371e6) * minutes}",
+                 "--scanner-span", f"{np.degrees(float(truth.scanner_angle_span))}",
+                 "--orbital-span", f"{np.degrees(float(truth.orbital_angle_span))}",
+                 "--subtrack", f"{float(truth.subtrack_pixel)}", "--search", "24", "--json", str(out)]) == 0
+    assert "DIRECTION OF ORBIT ASSUMED TO BE SOUTHWARD" in capsys.readouterr().out  # from the pass time
+    fitted, _ = scan_model_from_json(json.loads(out.read_text()))
+    pixel, scan = (a.ravel() for a in np.meshgrid(np.linspace(4, 236, 10), np.linspace(4, 236, 10)))
+    p, s = (np.asarray(a) for a in fitted.inverse(*truth.forward(pixel, scan)))
+    assert np.sqrt(np.mean((p - pixel) ** 2 + (s - scan) ** 2)) < 1.0  # pixels; the start was ~15 off
+    assert (tmp_path / "pass_overlay.png").exists()

@@ -154,8 +154,9 @@ def test_land_relief_is_static_and_deterministic():
     """The same seed gives the same land; land does not change with time; pack ice does."""
     first, second = ice_scene(np.random.default_rng(9)), ice_scene(np.random.default_rng(9))
     xy = jnp.stack(jnp.meshgrid(jnp.linspace(-50e3, 50e3, 40), jnp.linspace(-50e3, 50e3, 40)), axis=-1)
-    land = (first.centre + first.coast_normal * 260e3)[None, None, :] + xy  # 110 km inland of the mean coast
-    pack = (first.centre - first.coast_normal * 120e3)[None, None, :] + xy
+    inland = jnp.stack(first.projection.forward(np.radians(71.0), np.radians(-82.0)))  # Baffin Island (GSHHG)
+    offshore = jnp.stack(first.projection.forward(np.radians(74.0), np.radians(-72.0)))  # Baffin Bay
+    land, pack = inland[None, None, :] + 0.4 * xy, offshore[None, None, :] + xy  # land: > 50 km from the sea
     assert np.all(np.asarray(first.coast_offset(land)) > 0) and np.all(np.asarray(first.is_pack(pack)))
     np.testing.assert_array_equal(np.asarray(first.brightness(land, 0.0)), np.asarray(second.brightness(land, 0.0)))
     np.testing.assert_array_equal(np.asarray(first.brightness(land, 0.0)), np.asarray(first.brightness(land, 86400.0)))

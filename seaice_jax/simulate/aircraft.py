@@ -359,21 +359,37 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
     return Scenario("aidjex", plane, plan, errors, kinds, tuple(coverages), tuple(truth), floe, turn)
 
 
+PRUDHOE_COAST = (-152.0, 69.0, -146.0, 72.0)
+"""The GSHHG box (west, south, east, north degrees) the Prudhoe scenario takes its land from."""
+
+
 def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_points: int = 20,
                      map_sigma: float = 50.0, hours_after_take_off: float = 5.0) -> Scenario:
     """Prudhoe Bay (source 002): land (no motion) with ~20 map control points of ±50 m, imaged by single strips on
-    two days along the meridian 149°15'W, each about 5 h after take-off (large accumulated navigation errors)."""
+    two days along the meridian 149°15'W, each about 5 h after take-off (large accumulated navigation errors).
+
+    The strip runs north from 69.7°N across the real coast (GSHHG, near Prudhoe Bay ~70.4°N) out over the Beaufort
+    Sea; every feature and control point is drawn on GSHHG land inside the swath (the tundra of the North Slope and
+    the islands along the coast)."""
+    from seaice_jax.io.coastline import coastline
+
     errors = errors or ErrorModel()
     rng = np.random.default_rng(seed)
-    plan = FlightPlan(strips=1, strip_duration=1200.0, centre_latitude=69.9, centre_longitude=-149.25,
+    plan = FlightPlan(strips=1, strip_duration=1200.0, centre_latitude=69.7, centre_longitude=-149.25,
                       heading=0.0)
     plane = _block_plane(plan)
     half_along = plan.speed * plan.strip_duration / 2
     width = plan.altitude * (np.tan(np.radians(plan.far_angle)) - np.tan(np.radians(plan.near_angle)))
     count = control_points + 60
-    local = np.stack([rng.uniform(-0.9, 0.9, count) * half_along, rng.uniform(-0.45, 0.45, count) * width], 1)
     side = float(look_sign(plan.look_side))
-    positions = np.stack([side * local[:, 1], local[:, 0]], 1)  # heading north: along = y, across = x
+    land = coastline(*PRUDHOE_COAST)
+    positions = np.zeros((0, 2))
+    while len(positions) < count:
+        local = np.stack([rng.uniform(-0.9, 0.9, 4 * count) * half_along,
+                          rng.uniform(-0.45, 0.45, 4 * count) * width], 1)
+        candidates = np.stack([side * local[:, 1], local[:, 0]], 1)  # heading north: along = y, across = x
+        lat, lon = (np.degrees(np.asarray(a)) for a in plane.inverse(candidates[:, 0], candidates[:, 1]))
+        positions = np.concatenate([positions, candidates[land.contains(lat, lon)]])[:count]
     kinds = np.array(["land"] * count)
     coverages, truth = [], []
     for day in range(2):

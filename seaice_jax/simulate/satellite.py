@@ -3,6 +3,7 @@ sequences of AVHRR-like images of moving pack ice (:func:`simulate_sequence`) fo
 
 from dataclasses import dataclass
 
+import cv2
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -10,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.projections import Projection
+from seaice_jax.geometry.projections import MapGrid, Projection
 from seaice_jax.geometry.scan import Direction, ScanModel, satellite_orbit
 from seaice_jax.sensors.control import ControlPoints, ImageObservations
 
@@ -115,8 +116,13 @@ def _relief(octaves, xi):
 
 
 class IceScene(eqx.Module):
-    """The ground truth of a region: land behind a meandering coastline, a band of fast ice, pack ice moving with
-    an affine velocity field, all as brightness (0-1) in a local map projection.
+    """The ground truth of a region: land behind the real (GSHHG) coastline, a band of fast ice along it, pack ice
+    moving with an affine velocity field, all as brightness (0-1) in a local map projection.
+
+    The land is the signed distance to the coast (m, > 0 on land) on a fine raster (``land``, a map grid in the
+    scene's projection; land where :func:`~seaice_jax.io.coastline.land_mask_of_grid` says so), interpolated
+    bilinearly: a pure, differentiable function of position whose coast is the GSHHG shoreline to within half a
+    raster cell, with a smooth edge (no aliasing when sampled by coarser pixels).
 
     Pack ice is a material texture: the floe that is at ``X`` at time 0 is at ``X + t (v + G (X − X0))`` at time
     ``t`` s (velocity ``v`` m/s at the scene's centre ``X0``, velocity gradient ``G`` 1/s), so its velocity is
@@ -125,22 +131,22 @@ class IceScene(eqx.Module):
     Attributes:
         projection: the metric map projection (x, y in metres) the scene is defined in.
         centre: ``(2,)`` m, map coordinates of the scene's centre.
-        coast_normal: ``(2,)`` unit vector from sea to land. coast_distance: m from the centre to the mean
-            coastline along it. fast_ice_width: m.
+        land: the :class:`~seaice_jax.geometry.projections.MapGrid` of the coast-distance raster.
+        coast_distance: ``(land.n_rows, land.n_columns)`` m, signed distance from the coast (> 0 on land) at the
+            raster's cell centres. fast_ice_width: m.
         velocity: ``(2,)`` m/s at the centre (map x, y). velocity_gradient: ``(2, 2)`` 1/s, ∂(u, v)/∂(x, y).
     """
 
     projection: Projection
     centre: Float[Array, " 2"]
-    coast_normal: Float[Array, " 2"]
-    coast_distance: Float[Array, ""]
+    land: MapGrid
+    coast_distance: Float[Array, "rows columns"]
     fast_ice_width: Float[Array, ""]
     velocity: Float[Array, " 2"]
     velocity_gradient: Float[Array, "2 2"]
     ice_waves: tuple
     detail_waves: tuple
     land_waves: tuple
-    coast_waves: tuple
     relief_waves: tuple
 
     def displacement(self, xy, time):
@@ -158,11 +164,11 @@ class IceScene(eqx.Module):
         return material + jnp.broadcast_to(self.centre, xy.shape)
 
     def coast_offset(self, xy):
-        """Signed distance-like coordinate (m) toward land from the coastline (> 0 on land)."""
-        xi = jnp.asarray(xy) - jnp.broadcast_to(self.centre, jnp.shape(xy))
-        along = xi @ jnp.stack([-self.coast_normal[1], self.coast_normal[0]])
-        meander = _field(self.coast_waves, jnp.stack([along, jnp.zeros_like(along)], axis=-1))
-        return xi @ self.coast_normal - self.coast_distance - meander
+        """Signed distance (m) from the coastline toward land (> 0 on land) at ``xy (..., 2)`` m: the raster
+        interpolated bilinearly (beyond the raster, its edge value)."""
+        xy = jnp.asarray(xy, float)
+        row, column = self.land.to_pixel(xy[..., 0], xy[..., 1])
+        return jax.scipy.ndimage.map_coordinates(self.coast_distance, [row, column], order=1, mode="nearest")
 
     def is_pack(self, xy):
         """True where ``xy`` is seaward of the fast ice."""
@@ -190,10 +196,39 @@ class IceScene(eqx.Module):
         return value
 
 
-def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity=(0.06, -0.03),
+_COAST_DISTANCE: dict[tuple, np.ndarray] = {}
+"""Coast-distance rasters already made in this process, by grid (rasterizing takes seconds, a lookup nothing)."""
+
+
+def coast_distance_raster(grid: MapGrid) -> np.ndarray:
+    """``(n_rows, n_columns)`` m: signed distance from the GSHHG coast (> 0 on land) at a map grid's cell centres.
+
+    Land and sea are the coastline's :meth:`~seaice_jax.io.coastline.Coastline.contains` at the cell centres; each
+    cell's distance is that to the nearest cell of the other kind (exact Euclidean distance transform) less half a
+    cell, so the zero line runs midway between a land and a sea cell. Cells are assumed square
+    (``pixel_width``)."""
+    from seaice_jax.io.coastline import land_mask_of_grid
+
+    key = (grid.projection.proj_string(), float(grid.x_first), float(grid.y_first), float(grid.pixel_width),
+           float(grid.pixel_height), grid.n_rows, grid.n_columns)
+    if key not in _COAST_DISTANCE:
+        land = land_mask_of_grid(grid).astype(np.uint8)
+        inland = cv2.distanceTransform(land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        offshore = cv2.distanceTransform(1 - land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        distance = np.where(land > 0, inland - 0.5, 0.5 - offshore) * float(grid.pixel_width)
+        if len(_COAST_DISTANCE) >= 8:
+            _COAST_DISTANCE.pop(next(iter(_COAST_DISTANCE)))
+        _COAST_DISTANCE[key] = distance.astype(float)
+    return _COAST_DISTANCE[key]
+
+
+def ice_scene(rng: np.random.Generator, latitude=74.2, longitude=-78.0, velocity=(0.06, -0.03),
               velocity_gradient=((2e-7, 1e-7), (-1e-7, -1e-7)), feature_size=12_000.0,
-              projection=None) -> IceScene:
-    """A Lancaster-Sound-like scene: land to the north, 40 km of fast ice, pack ice moving ~6 km/day.
+              projection=None, fast_ice_width=12_000.0, extent=1_100_000.0, land_spacing=1000.0) -> IceScene:
+    """A scene of Lancaster Sound and its mouth into Baffin Bay (by default; any region by its centre): the real
+    GSHHG land — Devon Island to the north, Bylot and Baffin Islands to the south —, ``fast_ice_width`` of fast
+    ice along every coast, pack ice moving ~6 km/day. The Figure 3-3 stations (``examples/AGRID.STN``) are
+    coastal features of this scene.
 
     The land has relief texture (:func:`_relief`, wavelengths feature_size/2 to 8 feature_size, static, drawn from
     a generator spawned from ``rng``, so the other draws of ``rng`` do not change with it): what image matching
@@ -203,22 +238,21 @@ def ice_scene(rng: np.random.Generator, latitude=74.0, longitude=-85.0, velocity
         latitude, longitude: degrees of the centre. velocity: m/s (map x, y) at the centre.
         velocity_gradient: 1/s. feature_size: m, the smallest floe and lead widths (keep above two pixels of the
             images and maps the scene is seen in). projection: metric map projection (default NSIDC EPSG:3413).
+        fast_ice_width: m. extent: m, the side of the square coast raster around the centre (beyond it the land
+            or sea of its edge continues). land_spacing: m, its cell size (the coast's resolution).
     """
     from seaice_jax.geometry.projections import nsidc_polar_stereographic
 
     projection = projection or nsidc_polar_stereographic("north")
     centre = jnp.stack(projection.forward(np.radians(latitude), np.radians(longitude)))
-    # the coast runs roughly east-west in geographic terms: the land direction is map "north" at the centre
-    lat, lon = np.radians(latitude), np.radians(longitude)
-    north = jnp.stack(projection.forward(lat + 1e-4, lon)) - centre
-    coast_normal = north / jnp.linalg.norm(north)
-    coast_waves = _waves(rng, 4, 60_000.0, 300_000.0)
-    coast_waves = (coast_waves[0].at[:, 1].set(0.0), coast_waves[1], coast_waves[2] * 15_000.0)
-    return IceScene(projection, centre, coast_normal, jnp.asarray(150_000.0), jnp.asarray(40_000.0),
-                    jnp.asarray(velocity, float), jnp.asarray(velocity_gradient, float),
-                    _waves(rng, 40, 2 * feature_size, 12 * feature_size), _waves(rng, 20, feature_size,
-                                                                                 3 * feature_size),
-                    _waves(rng, 30, feature_size, 10 * feature_size), coast_waves,
+    rng.uniform(size=12)  # the draws of the former invented coastline: a seed keeps its pack ice and passes
+    cells = int(np.ceil(extent / land_spacing))
+    land = MapGrid.centred(projection, np.radians(latitude), np.radians(longitude), land_spacing, land_spacing,
+                           cells, cells)
+    return IceScene(projection, centre, land, jnp.asarray(coast_distance_raster(land)),
+                    jnp.asarray(float(fast_ice_width)), jnp.asarray(velocity, float),
+                    jnp.asarray(velocity_gradient, float), _waves(rng, 40, 2 * feature_size, 12 * feature_size),
+                    _waves(rng, 20, feature_size, 3 * feature_size), _waves(rng, 30, feature_size, 10 * feature_size),
                     _relief_octaves(rng.spawn(1)[0], 0.5 * feature_size))
 
 

@@ -1,0 +1,366 @@
+"""Control points from the coastline: the image's land/sea edges matched to the coast projected through the current
+model (source 001, VHR2: the operator overlaid the coastline on the image to judge a rectification; here the overlay
+is matched automatically, and the matches become control points of the orbit fit).
+
+From a rough model (the ascending node and the pass time as a user knows them, tens of kilometres off), each level
+of a coarse-to-fine loop:
+
+1. predicts the land in image space: every pixel centre through the current model (:meth:`ScanModel.forward`)
+   into the land test (GSHHG: :meth:`~seaice_jax.io.coastline.Coastline.contains`, passed in by the caller — this
+   layer does no I/O);
+2. matches windows of the prediction (where the coast crosses them) in the image: at every shift the image window
+   is fitted by least squares as an unknown step function of the distance to the predicted coast
+   (:func:`profile_fit`: land, sea bands 0-2, 2-5, 5-10, 10-20 pixels offshore, farther sea; both smoothed by a
+   Gaussian), which needs no assumption on the sign of the land/sea contrast and takes a band of fast ice along
+   the coast in its stride; the best R² wins (the first level searches the whole image's shift first), refined to
+   a sub-pixel shift by a quadratic fitted to the 3 x 3 values around the peak;
+3. proposes a control point per match: the image position where the window was found, the ground position the
+   current model gives the window's centre, and σ from the peak: ``C = (1 − ρ²) / (ρ n) (−H_ρ)⁻¹`` pixel² (ρ = √R²
+   at the peak, H_ρ its Hessian per pixel², n the independent pixels of the window), the larger axis of C taken as
+   an isotropic σ, turned into metres with the local pixel size;
+4. fits the scan model (:func:`~seaice_jax.adjust.orbit_fit.fit_scan_model`) and removes, one at a time, the point
+   with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.quality`),
+   refitting each time.
+
+The next level starts from the fitted model with a smaller search, smaller windows and less smoothing.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+
+from seaice_jax.adjust.orbit_fit import OrbitFit, fit_scan_model
+from seaice_jax.adjust.quality import critical_value
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.scan import ScanModel
+from seaice_jax.sensors.control import ControlPoints
+
+LandTest = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""``land(latitude_deg, longitude_deg) -> bool array`` of the same shape: True on land."""
+
+
+@dataclass(frozen=True)
+class MatchLevel:
+    """One level of the coarse-to-fine loop (pixels of the image).
+
+    Attributes:
+        search: ± pixels searched around the expected position (at the first level, around the whole image's
+            shift). window: side of the square templates. step: spacing of the template centres.
+        smoothing: σ of the Gaussian applied to image and prediction.
+    """
+
+    search: int
+    window: int
+    step: int
+    smoothing: float
+
+
+DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7))
+"""Coarse to fine: after the first level's global shift (``search`` of :func:`coast_control`) the windows look only a
+few pixels around it."""
+
+
+@dataclass(frozen=True)
+class CoastMatches:
+    """Windows of the predicted land found in the image.
+
+    Attributes:
+        pixel, scan: ``(n,)`` 1-based image position where each window's centre was found.
+        predicted_pixel, predicted_scan: ``(n,)`` the window's centre in the prediction (where the current model
+            puts the ground feature). sigma: ``(n,)`` pixels, isotropic σ of the match. correlation: ``(n,)`` √R² of
+            the coast profile's fit at the peak.
+    """
+
+    pixel: np.ndarray
+    scan: np.ndarray
+    predicted_pixel: np.ndarray
+    predicted_scan: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+
+
+@dataclass(frozen=True)
+class CoastControl:
+    """The result of :func:`coast_control`.
+
+    Attributes:
+        model: the final fitted :class:`ScanModel`. fit: its :class:`OrbitFit` (control points, w-tests).
+        rejected: ids of the points removed by the w-test, per level. matched: control points proposed per level.
+        shift: ``(pixel, scan)`` the whole image's shift found at the first level (how far off the start was).
+    """
+
+    model: ScanModel
+    fit: OrbitFit
+    rejected: tuple[tuple[str, ...], ...]
+    matched: tuple[int, ...]
+    shift: tuple[float, float]
+
+
+def predicted_land(model: ScanModel, land: LandTest) -> np.ndarray:
+    """``(n_scans, n_pixels)`` float 0/1: the land test at every pixel centre through ``model`` (1-based pixel,
+    scan; row = scan − 1, column = pixel − 1). Pixels whose ground the model cannot reach are sea."""
+    scan, pixel = np.meshgrid(np.arange(1.0, model.n_scans + 1), np.arange(1.0, model.n_pixels + 1), indexing="ij")
+    latitude, longitude = (np.asarray(a) for a in model.forward_unchecked(jnp.asarray(pixel), jnp.asarray(scan)))
+    reached = np.isfinite(latitude) & np.isfinite(longitude)
+    latitude, longitude = np.where(reached, latitude, 0.0), np.where(reached, longitude, 0.0)
+    inside = np.asarray(land(np.degrees(latitude), np.degrees(longitude)), bool)
+    return (inside & reached).astype(float)
+
+
+def _smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    return cv2.GaussianBlur(values.astype(np.float32), (0, 0), sigma) if sigma > 0 else values.astype(np.float32)
+
+
+def _quadratic_peak(surface: np.ndarray, row: int, column: int):
+    """Sub-pixel peak of a correlation surface at its maximum ``(row, column)`` (not on the border): a quadratic
+    ``a + g·d + ½ dᵀ H d`` fitted by least squares to the 3 x 3 values; returns ``(offset (2,) [column, row],
+    peak value, H (2, 2))`` or ``None`` where H is not negative definite or the peak leaves the 3 x 3."""
+    patch = surface[row - 1:row + 2, column - 1:column + 2].astype(float)
+    dy, dx = np.mgrid[-1:2, -1:2]
+    design = np.stack([np.ones(9), dx.ravel(), dy.ravel(), 0.5 * dx.ravel() ** 2, dx.ravel() * dy.ravel(),
+                       0.5 * dy.ravel() ** 2], 1)
+    a, gx, gy, hxx, hxy, hyy = np.linalg.lstsq(design, patch.ravel(), rcond=None)[0]
+    hessian = np.array([[hxx, hxy], [hxy, hyy]])
+    if not np.all(np.linalg.eigvalsh(hessian) < 0):
+        return None
+    offset = -np.linalg.solve(hessian, [gx, gy])
+    if np.any(np.abs(offset) > 1.0):
+        return None
+    return offset, float(a + 0.5 * np.dot([gx, gy], offset)), hessian
+
+
+COAST_BANDS = (0.0, -2.0, -5.0, -10.0, -20.0)
+"""Signed distances (pixels, > 0 on land) bounding the profile's bins: land (d > 0), then sea bands 0-2, 2-5, 5-10
+and 10-20 pixels offshore; farther sea is the baseline."""
+
+
+def coast_bands(prediction: np.ndarray, smoothing: float) -> np.ndarray:
+    """``(k, rows, columns)`` float32: indicators of the profile bins (:data:`COAST_BANDS`) of the prediction's
+    signed distance to its coast (pixels, exact Euclidean distance transform), each smoothed by a Gaussian of σ
+    ``smoothing`` pixels."""
+    land = (prediction > 0.5).astype(np.uint8)
+    inland = cv2.distanceTransform(land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    offshore = cv2.distanceTransform(1 - land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    distance = np.where(land > 0, inland - 0.5, 0.5 - offshore)
+    edges = (np.inf, *COAST_BANDS)
+    return np.stack([_smooth(((distance <= high) & (distance > low)).astype(np.float32), smoothing)
+                     for high, low in zip(edges[:-1], edges[1:], strict=True)])
+
+
+def profile_fit(region: np.ndarray, templates: np.ndarray, minimum_share: float = 0.02) -> np.ndarray:
+    """``(m, n)`` R² of the least-squares fit of the image window at every shift to the templates.
+
+    The window of the template's size at offset ``(i, j)`` in ``region`` ``(m + h − 1, n + w − 1)`` is regressed on
+    an intercept and the templates ``(k, h, w)`` (the profile bins: brightness an unknown function of the distance
+    to the coast, whatever its sign or shape); R² = bᵀ G⁻¹ b / S with b the templates' covariances with the window,
+    G their Gram matrix and S the window's sum of squares about its mean. Templates covering less than
+    ``minimum_share`` of the window (or not independent) are left out; none left: zeros."""
+    height, width = templates.shape[1:]
+    count = height * width
+    share = templates.reshape(len(templates), -1).mean(axis=1)
+    centred = templates[share > minimum_share] - share[share > minimum_share, None, None]
+    centred = centred.astype(np.float32)
+    rows, columns = region.shape[0] - height + 1, region.shape[1] - width + 1
+    if len(centred) == 0:
+        return np.zeros((rows, columns))
+    gram = np.einsum("kij,lij->kl", centred.astype(float), centred.astype(float))
+    if np.linalg.cond(gram) > 1e8:
+        return np.zeros((rows, columns))
+    region = region.astype(np.float32)
+    ones = np.ones((height, width), np.float32)
+    total = cv2.matchTemplate(region, ones, cv2.TM_CCORR).astype(float)
+    squares = cv2.matchTemplate(region * region, ones, cv2.TM_CCORR).astype(float)
+    spread = squares - total**2 / count
+    covariance = np.stack([cv2.matchTemplate(region, t, cv2.TM_CCORR).astype(float) for t in centred])
+    explained = np.einsum("kij,kl,lij->ij", covariance, np.linalg.inv(gram), covariance)
+    return np.where(spread > 1e-9 * count, explained / np.maximum(spread, 1e-300), 0.0)
+
+
+def global_shift(image: np.ndarray, prediction: np.ndarray, search: int, smoothing: float = 2.0):
+    """The whole image's shift ``(pixel, scan)`` from the prediction (the image shows the predicted land
+    displaced by it): the prediction's interior profile (:func:`profile_fit`) fitted over ± ``search`` pixels, the
+    best R² wins (sub-pixel by a quadratic).
+
+    Raises:
+        SeaiceError: the image is too small for the search; the prediction has no coast in its interior.
+    """
+    rows, columns = prediction.shape
+    if rows <= 2 * search + 8 or columns <= 2 * search + 8:
+        raise SeaiceError(f"automatic control: the image ({columns} x {rows}) is too small for a search of "
+                          f"±{search} pixels")
+    interior = prediction[search:rows - search, search:columns - search]
+    if not 0.005 < float(interior.mean()) < 0.995:
+        raise SeaiceError("automatic control: the coastline predicted from the start model does not cross the image "
+                          f"(land fraction {float(prediction.mean()):.2f}); no coast to match — check the node and "
+                          "time of the pass, or use manual control points")
+    templates = coast_bands(prediction, smoothing)[:, search:rows - search, search:columns - search]
+    surface = profile_fit(_smooth(image, smoothing), templates)
+    row, column = np.unravel_index(int(np.argmax(surface)), surface.shape)
+    offset = np.zeros(2)
+    if 0 < row < surface.shape[0] - 1 and 0 < column < surface.shape[1] - 1:
+        peak = _quadratic_peak(surface, int(row), int(column))
+        if peak is not None:
+            offset = peak[0]
+    return float(column - search + offset[0]), float(row - search + offset[1])
+
+
+def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, expected=(0.0, 0.0),
+                minimum_fit: float = 0.3, land_fraction=(0.1, 0.9)) -> CoastMatches:
+    """Windows of the prediction (those the coast crosses: land fraction within ``land_fraction``) found in the
+    image around the ``expected`` ``(pixel, scan)`` shift ± ``level.search`` by the coast profile's best fit
+    (:func:`profile_fit`); matches with R² below ``minimum_fit``, on the search's border or without a clear peak
+    are left out. ``correlation``: √R² at the peak."""
+    rows, columns = prediction.shape
+    smooth_image = _smooth(image, level.smoothing)
+    bands = coast_bands(prediction, level.smoothing)
+    half, search = level.window // 2, level.search
+    shift_column, shift_row = (int(round(v)) for v in expected)
+    independent = level.window**2 / max(1.0, 4 * np.pi * level.smoothing**2)
+    found = []
+    for row in range(half, rows - half, level.step):
+        for column in range(half, columns - half, level.step):
+            window = prediction[row - half:row + half, column - half:column + half]
+            if not land_fraction[0] <= window.mean() <= land_fraction[1]:
+                continue
+            top, left = row - half + shift_row - search, column - half + shift_column - search
+            bottom, right = top + 2 * half + 2 * search, left + 2 * half + 2 * search
+            if top < 0 or left < 0 or bottom > rows or right > columns:
+                continue
+            templates = bands[:, row - half:row + half, column - half:column + half]
+            surface = profile_fit(smooth_image[top:bottom, left:right], templates)
+            r, c = np.unravel_index(int(np.argmax(surface)), surface.shape)
+            if not (0 < r < surface.shape[0] - 1 and 0 < c < surface.shape[1] - 1):
+                continue
+            peak = _quadratic_peak(surface, int(r), int(c))
+            if peak is None or peak[1] < minimum_fit:
+                continue
+            offset, fit, hessian = peak
+            rho = float(np.sqrt(min(fit, 0.998)))
+            # R² = ρ²: the curvature of ρ is half that of R² over ρ
+            covariance = (1 - rho**2) / (rho * independent) * np.linalg.inv(-hessian / (2 * rho))
+            sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
+            centre_pixel, centre_scan = column + 0.5, row + 0.5  # 1-based: the even window's centre is a pixel edge
+            found.append((centre_pixel + shift_column + c - search + offset[0],
+                          centre_scan + shift_row + r - search + offset[1], centre_pixel, centre_scan, sigma, rho))
+    if not found:
+        return CoastMatches(*(np.zeros(0) for _ in range(6)))
+    return CoastMatches(*(np.array(values) for values in zip(*found, strict=True)))
+
+
+def proposed_control(matches: CoastMatches, model: ScanModel, prefix: str = "C",
+                     minimum_sigma: float = 0.1) -> ControlPoints:
+    """Control points from matches: image position where each window was found, ground position of the window's
+    centre through ``model`` (the model the prediction was made with), σ (m) = the match's σ (at least
+    ``minimum_sigma`` pixels) times the geometric mean of the local pixel sizes along and across the scan."""
+    lat, lon = (np.asarray(a) for a in model.forward_unchecked(matches.predicted_pixel, matches.predicted_scan))
+    lat_p, lon_p = (np.asarray(a) for a in model.forward_unchecked(matches.predicted_pixel + 1.0,
+                                                                   matches.predicted_scan))
+    lat_s, lon_s = (np.asarray(a) for a in model.forward_unchecked(matches.predicted_pixel,
+                                                                   matches.predicted_scan + 1.0))
+    radius = float(model.orbit.radius)
+    size_p = radius * np.hypot(lat_p - lat, (lon_p - lon) * np.cos(lat))
+    size_s = radius * np.hypot(lat_s - lat, (lon_s - lon) * np.cos(lat))
+    sigma = np.maximum(matches.sigma, minimum_sigma) * np.sqrt(size_p * size_s)
+    ids = [f"{prefix}{k + 1}" for k in range(len(lat))]
+    return ControlPoints(matches.pixel, matches.scan, lat, lon, sigma, ids)
+
+
+PAD = 64
+"""Control points are padded to a multiple of this (copies of the first point with a σ that gives them no weight),
+so that the fits of every level and image share a few compiled shapes."""
+
+_NO_WEIGHT = 1e12
+"""σ (m) of a padding or rejected point: no weight in the fit, no redundancy, w = 0."""
+
+
+def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0.001, max_rejected: float = 0.3,
+                      final: bool = True) -> tuple[OrbitFit, tuple[str, ...]]:
+    """Fit the scan model (direction and image size of ``model``) and remove, one at a time, the point with the
+    largest |w| beyond the critical value of ``alpha``, refitting, until none is beyond it or ``max_rejected`` (a
+    fraction) of the points are gone. Returns the last fit and the removed ids.
+
+    The loop fits padded point sets (:data:`PAD`) in which a removed point keeps its place with no weight; with
+    ``final`` the kept points are fitted once more on their own, so that the returned fit's σ̂0, redundancies and
+    covariance are those of exactly these points."""
+    limit = float(critical_value(alpha))
+    size = PAD * -(-len(control) // PAD)
+    padding = size - len(control)
+    pixel, scan, latitude, longitude, sigma = (np.concatenate([np.asarray(a), np.full(padding, np.asarray(a)[0])])
+                                               for a in (control.pixel, control.scan, control.latitude,
+                                                         control.longitude, control.sigma))
+    active = np.arange(size) < len(control)
+    ids = [*control.ids, *(f"pad{k}" for k in range(padding))]
+    rejected: list[str] = []
+    while True:
+        padded = ControlPoints(pixel, scan, latitude, longitude, np.where(active, sigma, _NO_WEIGHT), ids)
+        fit = fit_scan_model(padded, model.orbit, direction=model.direction, n_pixels=model.n_pixels,
+                             n_scans=model.n_scans)
+        w_lat, w_lon = fit.w_statistics()
+        worst = np.where(active, np.maximum(np.abs(w_lat), np.abs(w_lon)), 0.0)
+        if worst.max() <= limit or len(rejected) + 1 > max_rejected * len(control):
+            break
+        drop = int(np.argmax(worst))
+        rejected.append(ids[drop])
+        active[drop] = False
+    if final:
+        fit = fit_scan_model(_subset(control, active[:len(control)]), model.orbit, direction=model.direction,
+                             n_pixels=model.n_pixels, n_scans=model.n_scans)
+    return fit, tuple(rejected)
+
+
+def _subset(control: ControlPoints, keep: np.ndarray) -> ControlPoints:
+    index = np.flatnonzero(keep)
+    return ControlPoints(np.asarray(control.pixel)[index], np.asarray(control.scan)[index],
+                         np.asarray(control.latitude)[index], np.asarray(control.longitude)[index],
+                         np.asarray(control.sigma)[index], [control.ids[k] for k in index])
+
+
+def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
+                  levels: tuple[MatchLevel, ...] = DEFAULT_LEVELS, minimum_points: int = 6,
+                  alpha: float = 0.001) -> CoastControl:
+    """Fit an image's scan model to control points found on the coastline, from a rough ``start``.
+
+    Args:
+        image: ``(n_scans, n_pixels)`` brightness (row = scan line − 1, column = pixel − 1); NaN: no data.
+        start: the rough model (node and pass time as known; direction, size and sensor geometry right).
+        land: the land test (e.g. ``Coastline.contains`` of a box covering the image).
+        search: ± pixels of the first level's whole-image search (cover the start's error: 20 km is ~17 pixels
+            of a 1.2 km image). levels: the coarse-to-fine levels. minimum_points: fewer matches than this at a
+            level is an error. alpha: the w-test's significance.
+
+    Raises:
+        SeaiceError: the image is not ``(start.n_scans, start.n_pixels)``; no coast is predicted in the image;
+            too few matches at a level.
+    """
+    if not levels:
+        raise SeaiceError("automatic control: no matching levels given")
+    image = np.asarray(image, float)
+    if image.shape != (start.n_scans, start.n_pixels):
+        raise SeaiceError(f"automatic control: the image is {image.shape[1]} pixels x {image.shape[0]} scan lines, "
+                          f"the model {start.n_pixels} x {start.n_scans} (--pixels, --scans)")
+    finite = np.isfinite(image)
+    if not finite.any():
+        raise SeaiceError("automatic control: the image has no data (all NaN)")
+    image = np.where(finite, image, float(np.mean(image[finite])))
+    if float(np.std(image)) == 0.0:
+        raise SeaiceError("automatic control: the image is flat (one value everywhere); no coast to match")
+    model = start
+    shift = global_shift(image, predicted_land(start, land), search, levels[0].smoothing)
+    rejected, matched, fits = [], [], []
+    for k, level in enumerate(levels):
+        prediction = predicted_land(model, land)
+        matches = match_coast(image, prediction, level, shift if k == 0 else (0.0, 0.0))
+        if matches.pixel.size < minimum_points:
+            raise SeaiceError(f"automatic control: only {matches.pixel.size} coastline matches at level {k + 1} "
+                              f"(at least {minimum_points} needed): too little coast in the image, or the start is "
+                              "too far off for the search")
+        control = proposed_control(matches, model, prefix=f"C{k + 1}-")
+        fit, dropped = fit_with_snooping(control, model, alpha, final=k == len(levels) - 1)
+        model = fit.model
+        fits.append(fit)
+        rejected.append(dropped)
+        matched.append(len(control))
+    return CoastControl(model, fits[-1], tuple(rejected), tuple(matched), shift)

@@ -1,0 +1,109 @@
+"""Scenes on the real coast, and control points found on it (issue 15, items 3 and 4)."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from seaice_jax.cli import main
+from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import MEAN_RADIUS
+from seaice_jax.imagery.coast_control import MatchLevel, coast_control, predicted_land
+from seaice_jax.io.coastline import coastline, coastline_of_grid
+from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
+
+CENTRE = (73.9, -80.5)  # degrees: the mouth of Lancaster Sound (Devon Island north, Bylot Island south-east)
+SIZE = 240
+LEVELS = (MatchLevel(4, 48, 16, 1.5), MatchLevel(2, 32, 16, 1.0))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return ice_scene(np.random.default_rng(3), *CENTRE, extent=500_000.0)
+
+
+@pytest.fixture(scope="module")
+def coast(scene):
+    return coastline_of_grid(scene.land)
+
+
+def small_pass(direction, size=SIZE, subtrack=None):
+    """A NOAA-7-like pass sampled by ``size`` pixels over half the swath (~1.6 km pixels), centred on CENTRE."""
+    template = noaa_pass(direction, size, np.radians(CENTRE[0]), np.radians(CENTRE[1]), subtrack)
+    template = eqx.tree_at(lambda m: (m.scanner_angle_span, m.orbital_angle_span), template,
+                           replace=(0.5 * template.scanner_angle_span, 0.5 * template.orbital_angle_span))
+    return place_pass(template, np.radians(CENTRE[0]), np.radians(CENTRE[1]))
+
+
+def check_rms(fitted, true, size):
+    """RMS (pixels) of the fitted model's image position of the true ground of a 12 x 12 grid of pixels."""
+    pixel, scan = (a.ravel() for a in np.meshgrid(np.linspace(4, size - 4, 12), np.linspace(4, size - 4, 12)))
+    p, s = (np.asarray(a) for a in fitted.inverse(*true.forward(jnp.asarray(pixel), jnp.asarray(scan))))
+    return float(np.sqrt(np.mean((p - pixel) ** 2 + (s - scan) ** 2)))
+
+
+def test_scene_land_is_the_gshhg_land(scene, coast):
+    """The scene's land agrees with Coastline.contains away from the coast (the raster is 1 km); the named islands
+    are land and the sound between them is pack ice."""
+    rng = np.random.default_rng(0)
+    latitude, longitude = rng.uniform(72.5, 75.2, 3000), rng.uniform(-87.0, -74.0, 3000)
+    xy = jnp.stack(scene.projection.forward(np.radians(latitude), np.radians(longitude)), -1)
+    offset = np.asarray(scene.coast_offset(xy))
+    land = coast.contains(latitude, longitude)
+    clear = np.abs(offset) > 1500.0  # farther from the scene's coast than the raster's diagonal
+    assert clear.mean() > 0.85
+    np.testing.assert_array_equal(offset[clear] > 0, land[clear])
+    assert 0.3 < land.mean() < 0.8
+    islands = {"Devon": (75.0, -86.0), "Bylot": (73.3, -78.5), "Baffin (Borden Peninsula)": (72.8, -83.0)}
+    for name, (lat, lon) in islands.items():
+        point = jnp.stack(scene.projection.forward(np.radians(lat), np.radians(lon)))
+        assert coast.contains(lat, lon) and float(scene.coast_offset(point)) > 5000.0, name
+    sound = jnp.stack(scene.projection.forward(np.radians(74.2), np.radians(-82.0)))
+    assert not coast.contains(74.2, -82.0) and bool(scene.is_pack(sound))
+
+
+def test_automatic_control_recovers_the_true_model_from_20_km_off(scene, coast):
+    truth = small_pass("south")
+    image = np.asarray(render(scene, truth, 0.0))
+    # the pass time 20 km along the track off and the node 0.5° off: ~15 pixels of ~1.6 km
+    start = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), truth,
+                        replace=(truth.ascending_node - np.radians(0.5),
+                                 truth.orbital_angle_first + 20_000.0 / MEAN_RADIUS))
+    assert check_rms(start, truth, SIZE) > 10.0
+    pixel, scan = np.meshgrid(np.arange(1.0, SIZE + 1), np.arange(1.0, SIZE + 1))  # rows are scan lines
+    latitude, longitude = (np.degrees(np.asarray(a)) for a in truth.forward(pixel, scan))
+    np.testing.assert_array_equal(predicted_land(truth, coast.contains),
+                                  coast.contains(latitude, longitude).astype(float))
+    result = coast_control(image, start, coast.contains, search=24, levels=LEVELS)
+    # two levels on a small image: well under the 1.5 pixel of the acceptance (512 x 512, three levels: ~0.2)
+    assert check_rms(result.model, truth, SIZE) < 1.0
+    assert np.hypot(*result.shift) > 5.0  # the whole-image search found the start's offset
+    assert len(result.fit.control) >= 20
+    assert result.fit.adjustment is not None
+    assert 0.5 < float(result.fit.adjustment.sigma0) < 3.0  # the matches' stated σ is about right
+
+
+def test_automatic_control_refuses_a_wrong_size_and_an_image_without_coast(coast):
+    truth = small_pass("south")
+    with pytest.raises(SeaiceError, match="--pixels, --scans"):
+        coast_control(np.zeros((100, SIZE)), truth, coast.contains, search=24, levels=LEVELS)
+    # the same pass 60° of longitude west: the Canada Basin at 74°N, 300 km from the nearest land (Banks Island)
+    open_sea = eqx.tree_at(lambda m: m.ascending_node, truth, replace=truth.ascending_node - np.radians(60.0))
+    beaufort = coastline(-165.0, 68.0, -115.0, 80.0)
+    assert predicted_land(open_sea, beaufort.contains).sum() == 0 and len(beaufort.polygons) > 0
+    with pytest.raises(SeaiceError, match="does not cross the image"):
+        coast_control(np.random.default_rng(0).random((SIZE, SIZE)), open_sea, beaufort.contains, search=24,
+                      levels=LEVELS)
+
+
+def test_rectify_auto_control_errors_are_usage_errors(tmp_path, capsys):
+    image = tmp_path / "image.npy"
+    np.save(image, np.zeros((64, 80)))
+    common = ["rectify", "--satellite", "NOAA-7", "--image", str(image), "--auto-control"]
+    assert main([*common, "--node", "60", "--pass-minutes", "30"]) == 2
+    assert "image.npy: the image is 80 pixels x 64 scan lines, not 512 x 512 (--pixels, --scans)" in \
+        capsys.readouterr().err
+    assert main([*common, "--pixels", "80", "--scans", "64"]) == 2
+    assert "--auto-control needs --image and the rough orbit (--node, --pass-minutes)" in capsys.readouterr().err
+    assert main(["rectify", "--satellite", "NOAA-7"]) == 2
+    assert "MEASUREMENTS" in capsys.readouterr().err
