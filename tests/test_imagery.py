@@ -90,7 +90,7 @@ def test_fill_closes_holes_of_missing_data_with_the_mean_of_neighbours(sequence)
     data[holes] = np.nan
     values, valid = remap([data], [image.model], grid)
     assert (~valid[0] & swath_masks([image.model], grid)[0]).sum() > 100
-    filled, filled_valid = remap([data], [image.model], grid, fill=2)
+    filled, filled_valid = remap([data], [image.model], grid, fill=3)
     inside = swath_masks([image.model], grid)[0]
     assert filled_valid[0][inside].all() and not filled_valid[0][~inside].any()
     truth = truth_on(grid, sequence.scene, image.time)
