@@ -26,6 +26,7 @@ from seaice_jax.adjust.orbit_fit import (
     propagate_position_sigma,
 )
 from seaice_jax.adjust.quality import global_test
+from seaice_jax.adjust.sharding import sharded_vmap
 from seaice_jax.geometry.earth import SOLAR_DAY
 from seaice_jax.geometry.scan import Orbit
 from seaice_jax.simulate.satellite import (
@@ -109,7 +110,8 @@ def monte_carlo_section(runs, rng):
     exact = ControlPoints(control.pixel, control.scan, lat, lon, 1000.0, control.ids)
     solver = orbit_solver(exact, truth)
     noisy_lat, noisy_lon = perturb_known_positions(lat, lon, 1000.0, rng, runs)
-    solve = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, control_args(exact))))
+    # realizations over every local device (one on a CPU; several host devices or GPUs: split, same results)
+    solve = sharded_vmap(lambda a, b: solver({"latitude": a, "longitude": b}, control_args(exact)))
     results, seconds = timed(lambda: jax.block_until_ready(solve(jnp.asarray(noisy_lat), jnp.asarray(noisy_lon))))
     estimates = np.stack([np.asarray(getattr(results.parameters, n)) for n in FREE_PARAMETERS], 1)
     predicted = np.sqrt(np.diag(np.asarray(results.cofactor).mean(0)))
