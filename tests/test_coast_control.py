@@ -10,7 +10,9 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.imagery.coast_control import MatchLevel, coast_control, predicted_land
 from seaice_jax.io.coastline import coastline, coastline_of_grid
+from seaice_jax.io.sequence import MODEL_KEYS, read_sequence
 from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
+from seaice_jax.workflows.image_sequence import rectify_images
 
 CENTRE = (73.9, -80.5)  # degrees: the mouth of Lancaster Sound (Devon Island north, Bylot Island south-east)
 SIZE = 240
@@ -107,3 +109,56 @@ def test_rectify_auto_control_errors_are_usage_errors(tmp_path, capsys):
     assert "--auto-control needs --image and the rough orbit (--node, --pass-minutes)" in capsys.readouterr().err
     assert main(["rectify", "--satellite", "NOAA-7"]) == 2
     assert "MEASUREMENTS" in capsys.readouterr().err
+
+
+def write_coastline_project(folder, images, satellite_altitude):
+    """A sequence project of ``images`` ``[(name, data, rough model)]`` with ``control = "coastline"``."""
+    lines = ['epoch = "1983-03-08T00:00:00Z"', "[grid]", 'projection = "nsidc-north"',
+             f"centre_deg = {list(CENTRE)}", "pixel_m = [4000.0, 4000.0]", "shape = [60, 60]"]
+    for k, (name, data, rough) in enumerate(images):
+        np.save(folder / f"{name}.npy", data)
+        lines += ["[[image]]", f'name = "{name}"', f'time = "1983-03-08T0{k + 1}:00:00Z"', f'file = "{name}.npy"',
+                  'satellite = "NOAA-7"', f"altitude_m = {satellite_altitude!r}", f'direction = "{rough.direction}"',
+                  'control = "coastline"', "control_search = 24"]
+        lines += [f"{key} = {float(value)!r}" for key, value in zip(MODEL_KEYS, (
+            np.degrees(float(rough.scanner_angle_span)), float(rough.subtrack_pixel),
+            np.degrees(float(rough.orbital_angle_first)), np.degrees(float(rough.orbital_angle_span)),
+            np.degrees(float(rough.ascending_node))), strict=True)]
+    path = folder / "sequence.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_sequence_coastline_control_recovers_the_true_model_from_20_km_off(scene, tmp_path):
+    """``control = "coastline"`` in a sequence project, through the rectification ``seaice remap`` (and its Dask
+    path) runs: the fitted model is the true one, recorded like a control-point fit."""
+    truth = small_pass("south")
+    image = np.asarray(render(scene, truth, 0.0))
+    start = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), truth,
+                        replace=(truth.ascending_node - np.radians(0.5),
+                                 truth.orbital_angle_first + 20_000.0 / MEAN_RADIUS))
+    assert check_rms(start, truth, SIZE) > 10.0
+    path = write_coastline_project(tmp_path, [("A", image, start)], float(truth.orbit.altitude))
+    project = read_sequence(path)
+    assert project.images[0].model is None and project.images[0].control_search == 24
+    (rectification,), covariance = rectify_images(project)
+    assert check_rms(rectification.model, truth, SIZE) < 1.0
+    assert rectification.control >= 12 and len(rectification.point_ids) == rectification.control
+    assert 0.5 < rectification.sigma0 < 3.0
+    assert np.all(np.diag(covariance) > 0) and np.allclose(covariance, covariance.T)
+
+
+def test_sequence_coastline_control_errors_name_the_file_and_image(tmp_path):
+    truth = small_pass("south")
+    path = write_coastline_project(tmp_path, [("A", np.zeros((SIZE, SIZE)), truth)], float(truth.orbit.altitude))
+    text = path.read_text()
+    path.write_text("\n".join(line for line in text.splitlines() if not line.startswith("ascending_node_deg")))
+    with pytest.raises(SeaiceError, match=r"sequence.toml: image 'A': control = 'coastline' needs the rough scan "
+                                          r"model .*missing ascending_node_deg"):
+        read_sequence(path)
+    # the same pass 60° of longitude west: the Canada Basin, no coast to match
+    open_sea = eqx.tree_at(lambda m: m.ascending_node, truth, replace=truth.ascending_node - np.radians(60.0))
+    path = write_coastline_project(tmp_path, [("A", np.random.default_rng(0).random((SIZE, SIZE)), open_sea)],
+                                   float(truth.orbit.altitude))
+    with pytest.raises(SeaiceError, match=r"sequence.toml: image 'A': control = 'coastline': automatic control"):
+        rectify_images(read_sequence(path))

@@ -20,6 +20,11 @@ altitude_m = 0.0                      # 0: curvature-corrected image
 control = "IMG01_control.csv"         # id,pixel,scan,latitude_deg,longitude_deg,sigma_m: fit the scan model ...
 # ... or give it: direction, scanner_angle_span_deg, subtrack_pixel, orbital_angle_first_deg,
 #     orbital_angle_span_deg, ascending_node_deg
+# ... or find control points on the coastline (GSHHG), starting from those six keys as a rough model:
+# control = "coastline"
+# ascending_node_deg = -83.1          # the node's longitude from the orbital bulletin
+# orbital_angle_first_deg = 131.0     # 360° x (minutes from the node to the first scan line) / period
+# control_search = 32                 # ± pixels searched around the rough model (default 32)
 ```
 
 Every error names the file (and line, or image) at fault; reading never writes anything.
@@ -53,7 +58,8 @@ string, WKT: :func:`~seaice_jax.geometry.crs.projection_from_definition`)."""
 @dataclass(frozen=True)
 class SequenceImage:
     """One image of a sequence project: its pixels, time (s since the project's epoch), orbit, and either a
-    scan model or control points to fit one."""
+    scan model, control points to fit one, or (``control = "coastline"``) a ``rough`` model to start the search for
+    control points on the coastline from, ± ``control_search`` pixels."""
 
     name: str
     time: float
@@ -62,6 +68,8 @@ class SequenceImage:
     model: ScanModel | None
     control: ControlPoints | None
     direction: str
+    rough: ScanModel | None = None
+    control_search: int = 32
 
 
 MEMORY_BUDGET = 4 * 2**30
@@ -189,15 +197,25 @@ def _read_image(entry: dict, k: int, path: Path, epoch: str, allow_outside: bool
     except ValueError as error:
         raise SeaiceError(f"{label}: {error}") from None
     direction = entry.get("direction", "auto")
-    model = control = None
-    if "control" in entry:
+    model = control = rough = None
+    search = entry.get("control_search", 32)
+    if entry.get("control") == "coastline":
+        if not all(key in entry for key in MODEL_KEYS):
+            missing = ", ".join(key for key in MODEL_KEYS if key not in entry)
+            raise SeaiceError(f"{label}: control = 'coastline' needs the rough scan model to start from "
+                              f"(direction and {', '.join(MODEL_KEYS)}); missing {missing}")
+        if isinstance(search, bool) or not isinstance(search, int) or search < 1:
+            raise SeaiceError(f"{label}: control_search must be a positive whole number of pixels, got {search!r}")
+        rough = _given_model(entry, label, orbit, direction, data.shape)
+    elif "control" in entry:
         control = _read_control(project_file(path.parent, entry["control"], label, "control", allow_outside),
                                 data.shape)
     elif all(key in entry for key in MODEL_KEYS):
         model = _given_model(entry, label, orbit, direction, data.shape)
     else:
-        raise SeaiceError(f"{label}: give either control = 'file.csv' or the scan model ({', '.join(MODEL_KEYS)})")
-    return SequenceImage(name, time, data, orbit, model, control, direction)
+        raise SeaiceError(f"{label}: give either control = 'file.csv' or the scan model ({', '.join(MODEL_KEYS)}), "
+                          "or control = 'coastline' with a rough scan model")
+    return SequenceImage(name, time, data, orbit, model, control, direction, rough, search)
 
 
 def _check_hemisphere(path: Path, projection, latitude: float, half_height: float) -> None:

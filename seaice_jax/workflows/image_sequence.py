@@ -17,6 +17,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from seaice_jax.adjust.orbit_fit import (
+    OrbitFit,
     control_point_deviations,
     fit_scan_model,
     position_jacobian,
@@ -39,6 +40,7 @@ from seaice_jax.files import atomic_path, write_csv
 from seaice_jax.geometry.crs import CrsProjection
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
+from seaice_jax.imagery.coast_control import coast_control
 from seaice_jax.imagery.movie import render_frames, write_movie
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import GOOD, NO_DATA, STATUS, TrackingOptions, grid_points, track
@@ -53,6 +55,7 @@ from seaice_jax.io.products import (
 )
 from seaice_jax.io.sequence import (
     MEMORY_BUDGET,
+    SequenceImage,
     SequenceProject,
     make_grid,
     named_projection,
@@ -70,6 +73,7 @@ from seaice_jax.report.figures import (
 from seaice_jax.report.maps import map_overlay
 from seaice_jax.simulate.satellite import land_mask, scene_xy, simulate_sequence, true_displacement
 from seaice_jax.timefmt import format_time, parse_time, time_after
+from seaice_jax.workflows.rectify import image_coastline
 
 Result = TypeVar("Result")
 _UNKNOWNS = len(SCAN_UNKNOWNS)
@@ -137,32 +141,51 @@ class RemappedStack:
 
 
 def rectify_images(project: SequenceProject, progress: bool = False):
-    """The scan model of every image: given, or fitted to its control points (VHR2).
+    """The scan model of every image: given, fitted to its control points (VHR2), or fitted to control points found
+    on the coastline from its rough model (``control = "coastline"``, w-test rejection:
+    :func:`~seaice_jax.imagery.coast_control.coast_control`).
 
     Returns:
         ``(rectifications, covariance)``: one :class:`Rectification` per image and the block-diagonal covariance
         ``(5·images, 5·images)`` of the fitted unknowns.
+
+    Raises:
+        SeaiceError: the coastline matching failed (too few points, no coast in the image), naming file and image.
     """
     rectifications = []
     covariance = np.zeros((_UNKNOWNS * len(project.images),) * 2)
     for k, image in enumerate(tqdm(project.images, desc="rectify", disable=not progress, leave=False)):
-        model, sigma0 = image.model, float("nan")
+        model, sigma0, control = image.model, float("nan"), image.control
         if model is None:
-            assert image.control is not None  # read_sequence: a model or control points
-            fit = fit_scan_model(image.control, image.orbit, direction=image.direction,
-                                 n_pixels=image.data.shape[1], n_scans=image.data.shape[0])
+            if image.rough is not None:
+                fit = _coastline_fit(project.path, image)
+                control = fit.control
+            else:
+                assert control is not None  # read_sequence: a model, control points or a rough model
+                fit = fit_scan_model(control, image.orbit, direction=image.direction,
+                                     n_pixels=image.data.shape[1], n_scans=image.data.shape[0])
             assert fit.adjustment is not None  # the Gauss-Newton fit carries its adjustment
             model, sigma0 = fit.model, float(fit.adjustment.sigma0)
             block = slice(_UNKNOWNS * k, _UNKNOWNS * (k + 1))
             covariance[block, block] = np.asarray(fit.adjustment.covariance)
         north = east = np.zeros(0)
         ids = ()
-        if image.control is not None:
-            north, east = (np.asarray(a) for a in control_point_deviations(model, image.control))
-            ids = image.control.ids
+        if control is not None:
+            north, east = (np.asarray(a) for a in control_point_deviations(model, control))
+            ids = control.ids
         rectifications.append(Rectification(image.name, model, 0 if image.model is not None else len(ids), sigma0,
                                             ids, north, east))
     return tuple(rectifications), covariance
+
+
+def _coastline_fit(path: Path, image: SequenceImage) -> OrbitFit:
+    """The fit of ``image``'s scan model to control points found on the GSHHG coastline from its rough model."""
+    assert image.rough is not None
+    try:
+        coast = image_coastline(image.rough)
+        return coast_control(image.data, image.rough, coast.contains, search=image.control_search).fit
+    except SeaiceError as error:
+        raise SeaiceError(f"{path}: image {image.name!r}: control = 'coastline': {error}") from None
 
 
 def geolocation_sigma(models, covariance, grid: MapGrid) -> np.ndarray:
