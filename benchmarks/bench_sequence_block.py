@@ -6,16 +6,27 @@ columns about 200 km apart (alternating directions), so that a ground point is s
 ground points drawn in every image become ties with the other images that see them (exact pixel and scan by the true
 models plus N(0, 0.3 pixel)); four control points per image at σ 500 m; the adjustment starts about one pixel off.
 
+The lattice's interior is seen by more images than its edges, so larger sequences have more observations per tie
+(3.6 at 10 images, 5.4 at 50, 5.9 at 200); the Schur backend's work per tie is that of its pairs of observations
+(Σ k² over the ties, k the tie's observations: 16, 37 and 44 per tie), so the table gives the time per pair too.
+
+BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` unless set): the reduced system's Cholesky factor goes to
+scipy's OpenBLAS, whose threads, on cores busy with other work, spin against XLA's: a 250 x 250 factor took 0.25 s
+instead of 0.7 ms (load 4 on 2 cores), 4 to 5 of them per solve, and the 50- and 200-image runs were dominated by it.
+
 Run: ``.venv/bin/python benchmarks/bench_sequence_block.py [--sizes 10 50 200] [--ties-per-image 100]``.
 """
 
-import argparse
 import os
-import sys
-import time
-from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy and jax load OpenBLAS (module docstring)
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import update_results  # noqa: E402
@@ -111,8 +122,9 @@ def main():
              "the covariance). First call: trace + compile + solve; warm: the same call again (compiled); of it, "
              "the two tie error terms (`correlated_tie_covariance`, `systematic_tie_covariance`, timed apart on the "
              "final problem).", "",
-             "| images | ties | tie observations | first call (s) | warm call (s) | warm µs per tie | tie error "
-             "terms (s) | σ̂0 |", "|---|---|---|---|---|---|---|---|"]
+             "| images | ties | tie observations | observation pairs (Σ k²) | rounds | first call (s) | warm call (s) "
+             "| warm µs per tie | warm µs per pair | tie error terms (s) | σ̂0 |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for n_images in args.sizes:
         models, start, ties, controls = synthetic_sequence(n_images, args.ties_per_image, rng)
         began = time.perf_counter()
@@ -123,11 +135,14 @@ def main():
         warm = time.perf_counter() - began
         terms = tie_terms_time(result)
         n_ties = ties.latitude.size
-        lines.append(f"| {n_images} | {n_ties} | {ties.image.size} | {first:.1f} | {warm:.2f} | "
-                     f"{1e6 * warm / n_ties:.0f} | {terms:.2f} | {result.sigma0:.2f} |")
+        pairs = int(np.sum(np.bincount(ties.tie) ** 2))
+        lines.append(f"| {n_images} | {n_ties} | {ties.image.size} | {pairs} | {result.rounds} | {first:.1f} | "
+                     f"{warm:.2f} | {1e6 * warm / n_ties:.0f} | {1e6 * warm / pairs:.0f} | {terms:.2f} | "
+                     f"{result.sigma0:.2f} |")
         print(lines[-1], flush=True)
     lines += ["", f"Machine: {os.cpu_count()} cores, load average {load:.1f} at the start and "
-              f"{os.getloadavg()[0]:.1f} at the end (other work sharing the cores slows every column alike)."]
+              f"{os.getloadavg()[0]:.1f} at the end (other work sharing the cores slows every column alike); "
+              f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']} (module docstring)."]
     update_results("Simultaneous adjustment of image sequences (bench_sequence_block.py)", "\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -13,9 +13,15 @@ import time
 import traceback
 from pathlib import Path
 
-from seaice_jax import __version__
-from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code
-from seaice_jax.outputs import Interrupted, interrupts_raise
+# One BLAS thread unless the user says otherwise, set before NumPy loads OpenBLAS (the outputs import below): the
+# command's matrices are small (reduced normal systems of hundreds to a few thousand unknowns), and OpenBLAS's
+# threads competing with XLA's for a few busy cores made a 250 x 250 Cholesky 350 times slower (0.25 s against
+# 0.7 ms; the 200-image sequence adjustment 243 s against 42 s, benchmarks/bench_sequence_block.py).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from seaice_jax import __version__  # noqa: E402
+from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code  # noqa: E402
+from seaice_jax.outputs import Interrupted, interrupts_raise  # noqa: E402
 
 CACHE_VARIABLE = "SEAICE_JAX_CACHE_DIR"
 """Environment variable naming the folder of JAX's persistent compilation cache (empty: no cache)."""

@@ -6,6 +6,9 @@ import os
 # process waits forever, idle. With one thread the kernels run their batch inline. Set before JAX makes its CPU
 # client; the `seaice` subprocesses of the tests inherit it.
 os.environ["NPROC"] = "1"
+# One OpenBLAS thread (as the `seaice` command sets it): with XLA's thread and the other test process on two cores,
+# OpenBLAS's spinning threads made small factorizations hundreds of times slower.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import jax
 import numpy as np
