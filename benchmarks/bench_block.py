@@ -2,13 +2,20 @@
 scipy.optimize.least_squares (trf with a sparse Jacobian) on the same residuals.
 
 Run: ``.venv/bin/python benchmarks/bench_block.py [--quick]`` (``--quick``: small sizes, nothing written).
+BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` unless set), as in the ``seaice`` command: the datum check's
+eigenvalues and the reduced system's Cholesky factor go to OpenBLAS, whose threads spin against XLA's on a busy
+machine (the 50-strip warm call: 6.3 s with OpenBLAS's default threads, 1.4 s with one, at a load of 3 on 2 cores).
 """
 
-import argparse
-import platform
-import resource
-import time
-from dataclasses import replace
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy and jax load OpenBLAS (module docstring)
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import resource  # noqa: E402
+import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 
 import jax
 import jax.numpy as jnp
