@@ -91,7 +91,9 @@ class SequenceOptions:
         robust_cut: ties with an observation down-weighted below this factor by the robust solve are removed.
         max_steps: of the engine's damped Gauss-Newton loop per solve.
         variance_groups: prefixes of the observation groups whose variance factors are estimated once no tie is
-            flagged (module docstring); ``()``: none, the covariance is then σ̂0² Q.
+            flagged (module docstring), one factor per prefix shared by its groups (the tie groups of the pass
+            directions and image sizes meet only in differences: their split is not determined); ``()``: none, the
+            covariance is then σ̂0² Q.
         variance_tolerance: the factors are iterated until each changes by less than this fraction (their own
             relative σ is √(2/r), 0.06 for r = 500 tie coordinates: the default is well below it).
         tie_correlation: variance inflation of the ties' own errors (≥ 1): neighbouring matches share template
@@ -394,6 +396,10 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
                 removed[new] = True
                 order += [int(t) for t in new]
     estimated = [n for n in problem.blocks if n.startswith(tuple(options.variance_groups))]
+    # the groups of one prefix share one factor: a tie of two images is one observation in each image's group, so
+    # the ties fix the sum of the groups' variances, not its split (variance_components, ``pooled``)
+    pooled = tuple(pool for prefix in options.variance_groups
+                   if len(pool := tuple(n for n in estimated if n.startswith(prefix))) > 1)
     factors = dict.fromkeys(estimated, 1.0)
     settled = not estimated
     for _ in range(options.max_rounds):
@@ -405,9 +411,10 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
                                    f"(round {rounds}, {int(removed.sum())} ties removed)")
         worst = _worst_ties(current, result, options.alpha, options.batch)
         if not worst and not settled:
-            result = variance_components(current, engine_options, names, groups=estimated,
+            result = variance_components(current, engine_options, names, groups=estimated, pooled=pooled,
                                          tolerance=options.variance_tolerance, max_rounds=options.max_rounds)
-            change = {n: result.variance_components[n].value for n in estimated}
+            change = {n: component.value for label, component in result.variance_components.items()
+                      for n in label.split("+")}
             factors = {n: factors[n] * change[n] for n in estimated}
             problem = engine.rescaled(problem, {n: np.sqrt(change[n]) for n in estimated})
             current = _without(problem, removed)

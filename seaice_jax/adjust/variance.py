@@ -58,7 +58,7 @@ def _sums(adjustment: engine.Adjustment, problem: Problem, group):
     return float(jnp.sum(whitened**2)), float(jnp.sum(redundancy))
 
 
-def variance_components(problem: Problem, options=None, names=(), groups=None, split_components=(),
+def variance_components(problem: Problem, options=None, names=(), groups=None, split_components=(), pooled=(),
                         tolerance: float = 1e-3, max_rounds: int = 20, **solve_options):
     """Iterated Förstner/Helmert variance-component estimation.
 
@@ -66,37 +66,50 @@ def variance_components(problem: Problem, options=None, names=(), groups=None, s
         groups: block names (or ``(block, component)``) whose variance factors are estimated; default every group
             with a redundancy ≥ 1; the others (e.g. priors) keep their σ.
         split_components: blocks estimated per component (e.g. an image's along-track and range coordinates).
+        pooled: tuples of block names (not split) that share one factor, σ̂² = Σ vᵀPv / Σ r over the blocks. Groups
+            whose observations only ever meet in differences (each tie of a two-image sequence has one
+            observation in each image) determine the sum of their variances but not its split: estimated
+            separately, the split drifts round after round towards one factor 0 and never settles.
 
     Returns:
         The final :class:`~seaice_jax.adjust.engine.Adjustment` (σ of the estimated groups rescaled) with
-        ``variance_components = {group label: VarianceComponent}`` (label ``"block"`` or ``"block[c]"``).
+        ``variance_components = {group label: VarianceComponent}`` (label ``"block"`` or ``"block[c]"``; pooled
+        blocks: their names joined by ``"+"``).
     """
     candidates = _groups(problem, split_components)
+    for pool in pooled:
+        bad = [n for n in pool if n not in problem.blocks or n in split_components]
+        if bad:
+            raise SeaiceError(f"pooled: {', '.join(map(repr, bad))} not an unsplit block of the problem")
     factors = {g: 1.0 for g in candidates}
     first = result = engine.solve(problem, options, names, **solve_options)
     chosen = [g for g in candidates if (groups is None and _sums(first, problem, g)[1] >= 1.0)
               or (groups is not None and (g[0] in groups or g in groups))]
+    units = [unit for pool in pooled if (unit := [g for g in chosen if g[0] in pool])]
+    units += [[g] for g in chosen if not any(g in unit for unit in units)]
     for _ in range(max_rounds):
         scaled = engine.rescaled(problem, _scale_arrays(problem, factors), result)
         result = engine.solve(scaled, options, names, **solve_options)
         change = 0.0
-        for g in chosen:
-            square, redundancy = _sums(result, scaled, g)
+        for unit in units:
+            square, redundancy = np.sum([_sums(result, scaled, g) for g in unit], axis=0)
             ratio = square / redundancy if redundancy > 0 else 1.0
-            factors[g] *= np.sqrt(ratio)
+            for g in unit:
+                factors[g] *= np.sqrt(ratio)
             change = max(change, abs(ratio - 1.0))
         if change < tolerance:
             break
     else:
         raise SeaiceError(f"variance components did not settle in {max_rounds} rounds (largest change of a factor "
-                          f"{change:.2g}); a group may have too little redundancy")
+                          f"{change:.2g}); a group may have too little redundancy, or groups that only meet in "
+                          f"differences may need pooling")
     out = {}
-    for g in chosen:
-        value = factors[g] ** 2
-        _, redundancy = _sums(result, scaled, g)
+    for unit in units:
+        value = factors[unit[0]] ** 2
+        redundancy = float(np.sum([_sums(result, scaled, g)[1] for g in unit]))
         statistic = value * redundancy
         lower = float(chi2.cdf(statistic, redundancy))
-        label = g[0] if g[1] is None else f"{g[0]}[{g[1]}]"
+        label = "+".join(g[0] if g[1] is None else f"{g[0]}[{g[1]}]" for g in unit)
         out[label] = VarianceComponent(value, value * np.sqrt(2.0 / max(redundancy, 1e-12)), redundancy,
                                        2.0 * min(lower, 1.0 - lower))
     return eqx.tree_at(lambda r: r.variance_components, result, out, is_leaf=lambda x: x is None)

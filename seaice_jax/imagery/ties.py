@@ -27,18 +27,25 @@ Method:
 4. **Search window** from the models' uncertainty: with their covariances (of the five unknowns), ``n_sigma``
    times the largest predicted σ of T over the overlap (autodiff Jacobian of T with respect to both images'
    unknowns), plus one pixel; without, ``search``.
-5. **σ** of each observation (pixel, scan): σ² = ``pointing_sigma``² + ½ C_d, with C_d = 2 (1 − ρ)/N (−H)⁻¹ the
-   match covariance from the peak's correlation ρ and curvature H over the N template pixels (least-squares
-   matching with noise in both images: 1 − ρ ≈ σ_noise²/σ_signal², Σ∇I∇Iᵀ ≈ −N σ_signal² H), carried into each
-   image's axes by the Jacobian of T; half of the match variance goes to each image of the pair, so the difference
-   of the two observations has the match's variance plus 2 ``pointing_sigma``². ``pointing_sigma`` covers what the
-   correlation cannot see (resampling, the changes of texture between passes). The default 0.05 pixel is measured
-   on simulated sequences against the truth: the difference of a tie's two observations is off by 0.06-0.08 pixel
-   RMS per coordinate (0.08 with the single search, 0.06 with the second one; the peak's part is about 0.045;
-   experiments/results/sequence_block.md), where the former 0.2 floor stated 0.29. Neighbouring ties' errors are
-   correlated (overlapping templates: about 0.4 within 5 pixels, 0.15-0.2 at 5-10, none beyond 10), which no σ here
-   describes; the adjustment estimates the ties' variance factor from their residuals
-   (:mod:`seaice_jax.adjust.sequence_block`).
+5. **σ** of each observation (pixel, scan): σ² = ``pointing_sigma``² + ½ C_d, with C_d = 2 (1 − ρ)/N_eff (−H)⁻¹
+   the match covariance from the peak's correlation ρ and curvature H (least-squares matching with noise in both
+   images: 1 − ρ ≈ σ_noise²/σ_signal², Σ∇I∇Iᵀ ≈ −N σ_signal² H), carried into each image's axes by the Jacobian of
+   T; half of the match variance goes to each image of the pair, so the difference of the two observations has the
+   match's variance plus 2 ``pointing_sigma``². N_eff = N/``correlation_area`` is the number of independent samples
+   among the N template pixels: what decorrelates the two patches (the changes of texture between passes, the
+   sensor's blur, the bicubic resampling) is not white but correlated over neighbouring pixels, so the N pixels
+   carry fewer independent differences (the formula with N understates the error by √3). ``pointing_sigma``
+   covers what the correlation cannot see at all. Both are measured on the simulated Lancaster Sound sequences
+   (GSHHG coast, 3 images of 256 pixels, models 1 pixel off) against the true models, over 4900 matches of seeds
+   0-2: fitting the squared error of the difference of a tie's two observations as 2 f² + κ C_d gives κ = 3.0 and
+   f² ≈ 0 (the error grows with C_d: RMS 0.04 to 0.07 pixel from the quartile of least to most C_d, hardly at all
+   with ρ), hence ``correlation_area`` 3 and a ``pointing_sigma`` of 0.01 pixel, a safeguard below the fit's
+   resolution. The former model (N, ``pointing_sigma`` 0.05, measured on the former invented coastline) stated σ 1.3-1.7 times the error on this scene (normalised RMS 0.59-0.65 pixel axis, 0.73-0.76 scan
+   axis); now 0.91-1.01 on seeds 0-2 (pixel, scan: 0.91, 1.01 on seed 0 of tests/test_ties.py) and 0.92-1.09 on
+   the held-out seeds 3 and 4 (1.09, 1.03; 0.92, 1.06).
+   Neighbouring ties' errors are correlated (overlapping templates: about 0.4 within 5 pixels, 0.15-0.2 at 5-10,
+   none beyond 10), which no σ here describes; the adjustment estimates the ties' variance factor from their
+   residuals (:mod:`seaice_jax.adjust.sequence_block`).
 
 A ground point seen in k images is one tie with k observations (all matched against one reference).
 """
@@ -93,6 +100,8 @@ class TieOptions:
             :class:`~seaice_jax.imagery.tracking.TrackingOptions`).
         median_threshold, neighbours: the normalised median test of the shifts.
         pointing_sigma: pixels, the σ floor of each observation (module docstring).
+        correlation_area: template pixels per independent sample in the match covariance, N_eff = patch² /
+            correlation_area (module docstring).
     """
 
     patch: int = 15
@@ -105,7 +114,8 @@ class TieOptions:
     min_contrast: float = 0.03
     median_threshold: float = 3.0
     neighbours: int = 8
-    pointing_sigma: float = 0.05
+    pointing_sigma: float = 0.01
+    correlation_area: float = 3.0
 
     def __post_init__(self):
         if self.patch < 5 or self.patch % 2 == 0:
@@ -117,6 +127,8 @@ class TieOptions:
                               f"{self.max_search}")
         if not self.pointing_sigma > 0:
             raise SeaiceError(f"pointing_sigma must be > 0 pixels, got {self.pointing_sigma}")
+        if not self.correlation_area >= 1:
+            raise SeaiceError(f"correlation_area must be >= 1 pixel, got {self.correlation_area}")
 
 
 @dataclass(frozen=True)
@@ -411,10 +423,10 @@ class _Matches:
     status: np.ndarray
 
 
-def _peak(template, window, radius, patch):
+def _peak(template, window, radius, samples):
     """The NCC peak of ``template`` in ``window`` (searched ±``radius``): ``(status, shift (d_scan, d_pixel),
-    correlation, sharpness, covariance (2, 2))`` (quadratic sub-pixel fit; covariance of the shift, module
-    docstring), or a failure status with NaN values."""
+    correlation, sharpness, covariance (2, 2))`` (quadratic sub-pixel fit; covariance of the shift from
+    ``samples`` = N_eff independent template pixels, module docstring), or a failure status with NaN values."""
     surface, i, j, correlation, sharpness = correlation_peak(template, window)
     failed = (np.full(2, np.nan), correlation, sharpness, np.zeros((2, 2)))
     if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
@@ -422,7 +434,7 @@ def _peak(template, window, radius, patch):
     offset, hessian = quadratic_peak(surface, i, j)
     if np.linalg.det(hessian) <= 0 or hessian[0, 0] >= 0:
         return FLAT_PEAK, *failed
-    covariance = 2.0 * max(1.0 - correlation, 0.0) / patch**2 * np.linalg.inv(-hessian)
+    covariance = 2.0 * max(1.0 - correlation, 0.0) / samples * np.linalg.inv(-hessian)
     return GOOD, np.array([i - radius + offset[0], j - radius + offset[1]]), correlation, sharpness, covariance
 
 
@@ -430,6 +442,7 @@ def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search
     """Match the reference patches at integer ``(pixel, scan)`` of image r in image o: an integer-window search,
     then the window resampled again at the match found and the residual shift added (module docstring, 3.)."""
     half = options.patch // 2
+    samples = options.patch**2 / options.correlation_area
     templates = _patches(np.asarray(data_r, np.float32), pixel, scan, half)
     windows, valid = _windows(data_o, model_r, model_o, pixel, scan, half + search)
     n = pixel.size
@@ -444,7 +457,7 @@ def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search
             status[k] = LOW_CONTRAST
         else:
             status[k], shift[k], correlation[k], sharpness[k], covariance[k] = _peak(
-                templates[k], windows[k], search, options.patch)
+                templates[k], windows[k], search, samples)
     refine = np.nonzero(status == GOOD)[0]
     if refine.size:
         again, inside = _windows(data_o, model_r, model_o, pixel[refine] + shift[refine, 1],
@@ -453,7 +466,7 @@ def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search
             if not inside[w]:
                 status[k] = NO_DATA
                 continue
-            code, residual, rho, _, matrix = _peak(templates[k], again[w], _REFINE, options.patch)
+            code, residual, rho, _, matrix = _peak(templates[k], again[w], _REFINE, samples)
             if code != GOOD:
                 status[k] = code
                 continue
