@@ -135,6 +135,11 @@ class CrsProjection(Projection):
         x, y = jnp.broadcast_arrays(_as_float(x), _as_float(y))
         return _pyproj_map(self.definition, True, x, y)
 
+    def host_transform(self, first, second, inverse: bool = False) -> tuple[np.ndarray, ...]:
+        """:meth:`forward` (or, ``inverse``, :meth:`inverse`) computed by PROJ on NumPy arrays, outside JAX: for
+        host-side work such as drawing, where a JAX callback inside a compiled function gains nothing."""
+        return _host_map(self.definition, inverse, first, second)
+
     def proj_string(self) -> str:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "you will likely lose important projection information"

@@ -25,6 +25,7 @@ import numpy as np
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path
+from seaice_jax.geometry.crs import CrsProjection
 
 COASTLINE_CACHE_VARIABLE = "SEAICE_COASTLINE_CACHE_DIR"
 """Environment variable naming the folder of clipped coastline regions (empty: no cache on disk)."""
@@ -42,6 +43,10 @@ def bucketed(function, *arrays) -> tuple[np.ndarray, ...]:
     functions with ever-changing lengths; eagerly, each call would compile every operation again (seconds), jitted,
     each length once."""
     arrays = [np.asarray(a, float) for a in np.broadcast_arrays(*arrays)]
+    owner = getattr(function, "__self__", None)
+    if isinstance(owner, CrsProjection):  # PROJ on the host: nothing to compile, and no callback inside jit (it
+        # waited for ever on its own input under the tests' one XLA thread: tests/test_any_grid.py)
+        return owner.host_transform(*arrays, inverse=function.__name__ == "inverse")
     shape = arrays[0].shape
     size = arrays[0].size
     length = 1 << max(int(size - 1).bit_length(), 4)
