@@ -40,7 +40,8 @@ Method:
    0-2: fitting the squared error of the difference of a tie's two observations as 2 f² + κ C_d gives κ = 3.0 and
    f² ≈ 0 (the error grows with C_d: RMS 0.04 to 0.07 pixel from the quartile of least to most C_d, hardly at all
    with ρ), hence ``correlation_area`` 3 and a ``pointing_sigma`` of 0.01 pixel, a safeguard below the fit's
-   resolution. The former model (N, ``pointing_sigma`` 0.05, measured on the former invented coastline) stated σ 1.3-1.7 times the error on this scene (normalised RMS 0.59-0.65 pixel axis, 0.73-0.76 scan
+   resolution. The former model (N, ``pointing_sigma`` 0.05, measured on the former invented coastline) stated σ
+   1.3-1.7 times the error on this scene (normalised RMS 0.59-0.65 pixel axis, 0.73-0.76 scan
    axis); now 0.91-1.01 on seeds 0-2 (pixel, scan: 0.91, 1.01 on seed 0 of tests/test_ties.py) and 0.92-1.09 on
    the held-out seeds 3 and 4 (1.09, 1.03; 0.92, 1.06).
    Neighbouring ties' errors are correlated (overlapping templates: about 0.4 within 5 pixels, 0.15-0.2 at 5-10,
