@@ -64,13 +64,17 @@ def test_scene_land_is_the_gshhg_land(scene, coast):
     assert not coast.contains(74.2, -82.0) and bool(scene.is_pack(sound))
 
 
+def rough_start(truth):
+    """The pass time 20 km along the track off and the node 0.5° off (~15 pixels of ~1.6 km)."""
+    return eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), truth,
+                       replace=(truth.ascending_node - np.radians(0.5),
+                                truth.orbital_angle_first + 20_000.0 / MEAN_RADIUS))
+
+
 def test_automatic_control_recovers_the_true_model_from_20_km_off(scene, coast):
     truth = small_pass("south")
     image = np.asarray(render(scene, truth, 0.0))
-    # the pass time 20 km along the track off and the node 0.5° off: ~15 pixels of ~1.6 km
-    start = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), truth,
-                        replace=(truth.ascending_node - np.radians(0.5),
-                                 truth.orbital_angle_first + 20_000.0 / MEAN_RADIUS))
+    start = rough_start(truth)
     assert check_rms(start, truth, SIZE) > 10.0
     pixel, scan = np.meshgrid(np.arange(1.0, SIZE + 1), np.arange(1.0, SIZE + 1))  # rows are scan lines
     latitude, longitude = (np.degrees(np.asarray(a)) for a in truth.forward(pixel, scan))
@@ -134,9 +138,7 @@ def test_sequence_coastline_control_recovers_the_true_model_from_20_km_off(scene
     path) runs: the fitted model is the true one, recorded like a control-point fit."""
     truth = small_pass("south")
     image = np.asarray(render(scene, truth, 0.0))
-    start = eqx.tree_at(lambda m: (m.ascending_node, m.orbital_angle_first), truth,
-                        replace=(truth.ascending_node - np.radians(0.5),
-                                 truth.orbital_angle_first + 20_000.0 / MEAN_RADIUS))
+    start = rough_start(truth)
     assert check_rms(start, truth, SIZE) > 10.0
     path = write_coastline_project(tmp_path, [("A", image, start)], float(truth.orbit.altitude))
     project = read_sequence(path)

@@ -42,7 +42,7 @@ from distributed import Client, LocalCluster, as_completed
 from tqdm.auto import tqdm
 
 from seaice_jax.errors import SeaiceError
-from seaice_jax.files import atomic_path, write_csv
+from seaice_jax.files import atomic_path
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import TrackingOptions, grid_points
@@ -66,6 +66,7 @@ from seaice_jax.workflows.image_sequence import (
     track_pair,
     track_report,
     write_pair,
+    write_rectification,
     write_tracked,
 )
 
@@ -237,13 +238,7 @@ def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
              "covariance": covariance, **_model_arrays(result.models)}
     files = [_write_npz(staging / "remapped.npz", small, {"values": (np.float64, shape), "valid": (np.bool_, shape),
                                                            "sigma": (np.float64, shape)}, parts)]
-    measured = [image.rectification for image in images if image.rectification.north.size]
-    if measured:
-        files.append(write_csv(staging / "rectification.csv", {
-            "image": [r.name for r in measured for _ in r.north],
-            "point": [point for r in measured for point in r.point_ids],
-            "north_km": np.concatenate([r.north for r in measured]) / 1000,
-            "east_km": np.concatenate([r.east for r in measured]) / 1000}))
+    files += write_rectification(staging / "rectification.csv", [image.rectification for image in images])
     values = np.empty((len(parts), *shape))
     for k, part in enumerate(parts):
         with np.load(part) as data:

@@ -395,6 +395,19 @@ def geotiff_stack(paths, times=None) -> RemappedStack:
                          np.full(stack_values.shape, np.nan))
 
 
+def write_rectification(path: Path, rectifications) -> list[Path]:
+    """``rectification.csv``: the control-point deviations (north, east km) of every image fitted to control points,
+    as the 1985 VHR2 printout; ``[]`` (nothing written) when no image had control points."""
+    measured = [r for r in rectifications if r.north.size]
+    if not measured:
+        return []
+    return [write_csv(path, {
+        "image": [r.name for r in measured for _ in r.north],
+        "point": [point for r in measured for point in r.point_ids],
+        "north_km": np.concatenate([r.north for r in measured]) / 1000,
+        "east_km": np.concatenate([r.east for r in measured]) / 1000})]
+
+
 def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathLike,
                    progress: bool = False) -> tuple[Path, ...]:
     """``<image>.tif`` (GeoTIFF), ``remapped.npz``, ``rectification.csv`` (control-point deviations per image, as
@@ -405,13 +418,7 @@ def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathL
              tqdm(list(zip(stack.names, stack.values, labels, strict=True)), desc="write GeoTIFF",
                   disable=not progress, leave=False)]
     files.append(save_stack(out / "remapped.npz", stack))
-    measured = [r for r in rectifications if r.north.size]
-    if measured:
-        files.append(write_csv(out / "rectification.csv", {
-            "image": [r.name for r in measured for _ in r.north],
-            "point": [point for r in measured for point in r.point_ids],
-            "north_km": np.concatenate([r.north for r in measured]) / 1000,
-            "east_km": np.concatenate([r.east for r in measured]) / 1000}))
+    files += write_rectification(out / "rectification.csv", rectifications)
     x, y = (np.asarray(a) / 1000 for a in stack.grid.xy())
     files.append(plot_remapped(out / "remapped.png", stack.values, [
         f"{n}\n{label[:16]}" for n, label in zip(stack.names, labels, strict=True)], [x.min(), x.max(), y.min(),
