@@ -273,10 +273,16 @@ def bounds_of_grid(grid, margin: float = 0.5) -> tuple[float, float, float, floa
         raise SeaiceError("the map grid has no pixel with a latitude and longitude (all beyond the projection)")
     loop = np.concatenate([longitude[0, :], longitude[1:, -1], longitude[-1, -2::-1], longitude[-2:0:-1, 0]])
     loop = loop[np.isfinite(loop)]
-    south = max(-90.0, float(latitude[finite].min()) - margin)
-    north = min(90.0, float(latitude[finite].max()) + margin)
-    turns = np.unwrap(np.radians(np.append(loop, loop[0])))
-    if abs(turns[-1] - turns[0]) > np.pi:  # the grid's boundary winds around a pole: every longitude
+    return outline_box(loop, float(latitude[finite].min()), float(latitude[finite].max()), margin)
+
+
+def outline_box(longitude, south: float, north: float, margin: float) -> tuple[float, float, float, float]:
+    """``(west, south, east, north)`` degrees of a region whose boundary runs through ``longitude`` (degrees, in
+    order around it) and whose latitudes span ``south``-``north``, widened by ``margin`` degrees; ``west > east``
+    across the antimeridian; a boundary winding around a pole takes every longitude up to the pole."""
+    south, north = max(-90.0, south - margin), min(90.0, north + margin)
+    turns = np.unwrap(np.radians(np.append(longitude, longitude[0])))
+    if abs(turns[-1] - turns[0]) > np.pi:  # the boundary winds around a pole: every longitude
         return (-180.0, south, 180.0, 90.0) if north > 0 else (-180.0, -90.0, 180.0, north)
     if np.degrees(turns.max() - turns.min()) + 2 * margin >= 360.0:
         return -180.0, south, 180.0, north

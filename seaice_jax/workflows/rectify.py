@@ -19,7 +19,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import SIDEREAL_DAY
 from seaice_jax.geometry.scan import Orbit, ScanModel, satellite_orbit
 from seaice_jax.imagery.coast_control import CoastControl, coast_control, fit_with_snooping
-from seaice_jax.io.coastline import Coastline, coastline
+from seaice_jax.io.coastline import Coastline, coastline, outline_box
 from seaice_jax.io.sequence import read_image_file
 from seaice_jax.io.stations import check_in_image, control_points, read_agrid, read_measurements
 from seaice_jax.sensors.control import ControlPoints
@@ -75,13 +75,7 @@ def image_coastline(model: ScanModel, margin: float = 1.0) -> Coastline:
     if not (np.all(np.isfinite(latitude)) and np.all(np.isfinite(longitude))):
         raise SeaiceError("the rough orbit does not put the image's edges on the Earth (check --node, "
                           "--pass-minutes, --scanner-span)")
-    turns = np.unwrap(np.radians(longitude))
-    south, north = max(-90.0, latitude.min() - margin), min(90.0, latitude.max() + margin)
-    if np.degrees(turns.max() - turns.min()) + 2 * margin >= 360.0 or north > 89.0:
-        return coastline(-180.0, south, 180.0, north)
-    west = (float(np.degrees(turns.min())) - margin + 180.0) % 360.0 - 180.0
-    east = (float(np.degrees(turns.max())) + margin + 180.0) % 360.0 - 180.0
-    return coastline(west, float(south), east, float(north))
+    return coastline(*outline_box(longitude, float(latitude.min()), float(latitude.max()), margin))
 
 
 @dataclass(frozen=True)
