@@ -392,12 +392,12 @@ def _result(layout: BlockLayout, problem: Problem, options, solver, coverages, n
     w = np.asarray(adjustment.standardized_residuals["image"])[:m]
     ground = np.asarray(_all_rectified(jnp.asarray(unknowns), problem.blocks["image"], float(radius)))[:m]
     positions, covariances = [], []
+    key = np.array(layout.point_key, int).reshape(-1, 2)  # (coverage, point) of each point unknown
     for c in range(len(coverages)):
         where = np.full((n_points, 2), np.nan)
         cov = np.full((n_points, 2, 2), np.nan)
-        for u, (cc, p) in enumerate(layout.point_key):
-            if cc == (-1 if options.static_points else c):
-                where[p], cov[p] = points[u], point_cofactor[u]
+        mine = np.nonzero(key[:, 0] == (-1 if options.static_points else c))[0]
+        where[key[mine, 1]], cov[key[mine, 1]] = points[mine], point_cofactor[mine]
         positions.append(where)
         covariances.append(cov)
     drift, drift_cov = [], []

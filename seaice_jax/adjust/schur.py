@@ -54,12 +54,15 @@ class SchurLayout(eqx.Module):
 
 
 def _pairs(point):
+    """``(first, second)``: every ordered pair of rows of one point (a row with itself included), point by point in
+    ascending order, rows in their order within the point."""
     order = np.argsort(point, kind="stable")
-    groups = np.split(order, np.nonzero(np.diff(point[order]))[0] + 1) if point.size else []
-    first = [np.repeat(g, g.size) for g in groups]
-    second = [np.tile(g, g.size) for g in groups]
-    return (np.concatenate(first) if first else np.zeros(0, int)), (np.concatenate(second) if second else
-                                                                    np.zeros(0, int))
+    ordered = point[order]
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]]) if point.size else np.zeros(0, int)
+    counts = np.diff(np.r_[starts, point.size])
+    start_of, count_of = np.repeat(starts, counts), np.repeat(counts, counts)  # per sorted row, its point's run
+    within = np.arange(int(count_of.sum())) - np.repeat(np.cumsum(count_of) - count_of, count_of)
+    return np.repeat(order, count_of), order[np.repeat(start_of, count_of) + within]
 
 
 def _cross_pairs(point, cross_points):

@@ -40,20 +40,19 @@ class NavigationSpline(Trajectory):
     velocities: Float[Array, "n 3"]
 
     def __init__(self, times, positions, velocities):
-        times = jnp.asarray(times, float)
-        positions = jnp.asarray(positions, float)
-        velocities = jnp.asarray(velocities, float)
+        # checked on the host (no JAX dispatch per check), stored as JAX arrays
+        times, positions, velocities = (np.asarray(a, float) for a in (times, positions, velocities))
         if times.ndim != 1 or times.shape[0] < 2:
             raise SeaiceError(f"navigation needs at least two records, got times of shape {times.shape}")
         if positions.shape != (times.shape[0], 3) or velocities.shape != (times.shape[0], 3):
             raise SeaiceError(f"navigation positions and velocities must be ({times.shape[0]}, 3), got "
                               f"{positions.shape} and {velocities.shape}")
-        steps = jnp.diff(times)
-        if not bool(jnp.all(steps > 0)):
-            bad = int(jnp.argmax(steps <= 0)) + 1
+        steps = np.diff(times)
+        if not np.all(steps > 0):
+            bad = int(np.argmax(~(steps > 0))) + 1
             raise SeaiceError(f"navigation record {bad}: time {float(times[bad])} s does not increase "
                               f"(previous {float(times[bad - 1])} s)")
-        self.times, self.positions, self.velocities = times, positions, velocities
+        self.times, self.positions, self.velocities = (jnp.asarray(a) for a in (times, positions, velocities))
 
     def __call__(self, time):
         """Position ``(..., 3)`` m and velocity ``(..., 3)`` m/s at ``time`` ``(...)`` s (extrapolates the end
@@ -276,8 +275,7 @@ class SplineError(eqx.Module):
     @classmethod
     def zeros(cls, start, end, spacing, components=2):
         """A zero spline covering [start, end] with knots every ``spacing`` seconds."""
-        pieces = max(int(np.ceil((end - start) / spacing)), 1)
-        return cls(jnp.zeros((pieces + 3, components)), start, spacing)
+        return cls(jnp.zeros((_spline_pieces(start, end, spacing) + 3, components)), start, spacing)
 
     def __call__(self, time):
         position = (jnp.asarray(time, float) - self.start) / self.spacing
@@ -286,6 +284,11 @@ class SplineError(eqx.Module):
         u = (position - i)[..., None]
         basis = ((1 - u) ** 3 / 6, (3 * u**3 - 6 * u**2 + 4) / 6, (-3 * u**3 + 3 * u**2 + 3 * u + 1) / 6, u**3 / 6)
         return sum((b * self.coefficients[i + j] for j, b in enumerate(basis)), jnp.zeros(()))
+
+
+def _spline_pieces(start, end, spacing) -> int:
+    """Number of cubic pieces of a spline covering [start, end] with knots every ``spacing`` seconds (at least 1)."""
+    return max(int(np.ceil((end - start) / spacing)), 1)
 
 
 ERROR_MODELS = ("constant", "linear", "schuler", "spline")
@@ -309,7 +312,7 @@ def error_basis_size(model: str, start: float, end: float, knot_spacing: float =
     if model not in ERROR_MODELS:
         raise SeaiceError(f"navigation-error model must be one of {', '.join(ERROR_MODELS)}, got {model!r}")
     if model == "spline":
-        return SplineError.zeros(start, end, knot_spacing).coefficients.shape[0]
+        return _spline_pieces(start, end, knot_spacing) + 3
     return {"constant": 1, "linear": 2, "schuler": 4}[model]
 
 
@@ -324,16 +327,15 @@ def error_basis(model: str, times, start: float, end: float, knot_spacing: float
         times: ``(n,)`` seconds. start, end: the strip's time span.
 
     Returns:
-        ``(values (n, q), rates (n, q))``, rates in 1/s.
+        ``(values (n, q), rates (n, q))`` NumPy arrays (host side), rates in 1/s.
     """
     q = error_basis_size(model, start, end, knot_spacing)
-    times = jnp.asarray(times, float)
+    times = np.asarray(times, float)
     n = times.shape[0]
     # padded to a bucket and the span traced: strips of one model and basis size share one compile
-    padded = jnp.pad(times, (0, bucket(n) - n), mode="edge")
-    basis, rates = _error_basis(model, q, padded, jnp.asarray(start, float), jnp.asarray(end, float),
-                                jnp.asarray(knot_spacing, float))
-    return basis[:n], rates[:n]
+    padded = np.pad(times, (0, bucket(n) - n), mode="edge")
+    basis, rates = _error_basis(model, q, padded, float(start), float(end), float(knot_spacing))
+    return np.asarray(basis)[:n], np.asarray(rates)[:n]
 
 
 @functools.partial(jax.jit, static_argnames=("model", "q"))
