@@ -20,11 +20,14 @@ points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan 
   unknown, as an orbit prediction would give: no per-image fit is possible on two points). With none, the
   predicted models are the adjustment's priors (σ of the prediction); with 2 and 4 nothing else is known.
 
-For the 12-point case also: the stated σ without the ties' systematic error term (``SequenceAdjustment.systematic``,
-«independent tie errors»); the matcher's error against the truth, and the part of it common to each image pair (an
-affine field per pair and axis fitted to the true tie errors: the measurement behind ``SequenceOptions``'
-``tie_offset_factor`` and ``tie_gradient_factor``); 5 % of the ties planted as mismatches (one observation moved 5-20
-pixels) and the adjustment repeated.
+For every control count also the stated σ with the ties' former systematic term (an affine field per image pair of
+η_o 13 / η_g 8 times its matches' own (XᵀWX)⁻¹, ``FORMER_PAIR_FIELDS``) in place of the phase-dependent bias
+(``SequenceOptions.tie_phase_sigma``, :func:`~seaice_jax.adjust.sequence_block.phase_tie_covariance`), «former pair
+fields». For the 12-point case also: the stated σ without the ties' systematic error terms
+(``SequenceAdjustment.systematic``, «independent tie errors»); the matcher's error against the truth, and the part
+of it common to each image pair (an affine field per pair and axis fitted to the true tie errors: the measurement
+behind ``SequenceOptions``' ``tie_offset_factor`` and ``tie_gradient_factor``); 5 % of the ties planted as
+mismatches (one observation moved 5-20 pixels) and the adjustment repeated.
 
 Scores against the simulation's truth: the true model error over the image (ground distance between the adjusted and
 the true model's positions of random pixels) and its stated σ there; the drift error due to the models, exact for
@@ -51,7 +54,13 @@ from scipy.linalg import block_diag
 
 from seaice_jax.adjust.multi_image import sequential_fit
 from seaice_jax.adjust.orbit_fit import fit_scan_model, position_jacobian
-from seaice_jax.adjust.sequence_block import SequenceOptions, adjust_sequence
+from seaice_jax.adjust.sequence_block import (
+    SequenceOptions,
+    adjust_sequence,
+    phase_tie_covariance,
+    sequence_problem,
+    systematic_tie_covariance,
+)
 from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
 from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle
 from seaice_jax.geometry.projections import MapGrid
@@ -68,6 +77,8 @@ PREDICTION_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
 """σ of the predicted models' unknowns (radians, pixel) for the 2-control-point case: about one pixel."""
 STATIC_MARGIN = 3000.0
 TRACKING_SIGMA = 0.2  # pixels of the map grid
+FORMER_PAIR_FIELDS = (13.0, 8.0)
+"""η_o, η_g of the affine pair fields the adjustment used before ``tie_phase_sigma`` (``SequenceOptions``)."""
 
 
 def static_surface(scene):
@@ -101,6 +112,18 @@ def apparent(scene, fitted, true, xy, size):
     lat_f, lon_f = fitted.forward(pixel, scan)
     out = np.stack([np.asarray(a) for a in scene.projection.forward(lat_f, lon_f)], 1)
     return np.where(inside[:, None], out, np.nan)
+
+
+def former_covariance(result, size):
+    """``result``'s covariance with the ties' former systematic term (``FORMER_PAIR_FIELDS``: an affine field per
+    pair, no phase-dependent bias) in place of the phase-dependent one."""
+    problem, adjustment, observations = sequence_problem(result.observations), result.adjustment, result.observations
+    cofactor = np.asarray(result.cofactor)
+    sizes = np.full((observations.n_images, 2), size)
+    return (result.covariance
+            - phase_tie_covariance(problem, adjustment, observations, cofactor, SequenceOptions().tie_phase_sigma)
+            + systematic_tie_covariance(problem, adjustment, observations.reference_image, sizes, cofactor,
+                                        *FORMER_PAIR_FIELDS))
 
 
 def first_controls(control: ControlPoints, count: int) -> ControlPoints:
@@ -244,6 +267,9 @@ def realization(seed, images, tracked, size):
                "simultaneous, 12 control points": (list(block12.models), block12.covariance)}
     methods.update({f"simultaneous, {count} control points": (list(result.models), result.covariance)
                     for count, result in sweep.items()})
+    methods.update({f"simultaneous, {count} control points, former pair fields": (list(result.models),
+                                                                                 former_covariance(result, size))
+                    for count, result in [(12, block12), *sweep.items()]})
     cells = np.stack([np.asarray(a) for a in grid.xy()], -1).reshape(-1, 2)
     pack = cells[np.asarray(scene.is_pack(cells))]
     out = {"ties": [ties.n_ties, predicted_ties.n_ties], "removed": [block12.n_removed, sweep[2].n_removed],
@@ -322,7 +348,8 @@ def summary(runs, args, elapsed):
              "the tracking adds about 0.35 / 0.20 km (experiments/results/lancaster_like.md, true models). "
              "Stated σ: `displacement_sigma` of the models' joint covariance without the tracking term: Q with the "
              "ties' variance factor estimated plus the ties' correlated and systematic error terms (the defaults: "
-             "`SequenceOptions.tie_correlation`, `tie_offset_factor`, `tie_gradient_factor`), the same without "
+             "`SequenceOptions.tie_correlation`, `tie_phase_sigma`; «former pair fields»: the affine pair fields of "
+             f"η {FORMER_PAIR_FIELDS[0]:g} / {FORMER_PAIR_FIELDS[1]:g} in place of the phase term), the same without "
              "those terms («independent "
              "tie errors»); the chained and per-image fits: their own covariances. One sequence's drift errors are "
              "a few smooth error fields, not independent draws: the ratio varies from sequence to sequence and only "
@@ -358,8 +385,9 @@ def summary(runs, args, elapsed):
               "; of which the matches' own noise (residual variance x tie_correlation) "
               f"{np.sqrt(np.mean(noise[:, 0])):.4f} / {np.sqrt(np.mean(noise[:, 1:])):.3f}; the rest in units of "
               "the pair's own (Xᵀ W X)⁻¹ (Σ(c² − noise) / Σ unit, the estimate of `SequenceOptions."
-              f"tie_offset_factor`, `tie_gradient_factor`): {factor[0]:.1f} / {factor[1]:.1f} (the defaults: "
-              f"{options.tie_offset_factor} / {options.tie_gradient_factor}).", "",
+              f"tie_offset_factor`, `tie_gradient_factor`): {factor[0]:.1f} / {factor[1]:.1f} (the former defaults: "
+              f"{FORMER_PAIR_FIELDS[0]:g} / {FORMER_PAIR_FIELDS[1]:g}; now {options.tie_offset_factor:g} / "
+              f"{options.tie_gradient_factor:g}, the phase term instead).", "",
               f"Planted mismatches (5 % of the ties of the 12-point case, one observation each moved 5-20 pixels): "
               f"{sum(r['planted_found'] for r in runs)} of {sum(r['planted'] for r in runs)} removed; other ties "
               f"removed besides those of the clean run: {sum(r['false_removed'] for r in runs)}; largest change of "

@@ -36,17 +36,25 @@ a σ per observation:
 * **Correlated tie errors**: neighbouring matches share template pixels (about 0.4 within 5 pixels, 0.15-0.2 at
   5-10); their information is that of n / κ ties. The covariance is the weighted estimator's under that model,
   Q (κ N_t + N_o) Q (:func:`correlated_tie_covariance`; ``SequenceOptions.tie_correlation``);
-* **Systematic tie errors**: the sub-pixel bias of the matches varies smoothly with the two images' sampling
-  phase, so each pair's errors carry a common field (offset and gradients over the overlap): the scan-model
-  unknowns absorb it whole (it never shows in the residuals, and the estimated variance factor does not see it)
-  and it moves the relative geometry. Removing each pair's affine field (known from the truth) cut the drift error
-  of four sequences from 73-320 m to 14-51 m. The field is not of one size for every pair: fitted to the true
-  errors, its coefficients shrink with the pair's number of matches as the matches' own noise would (offset RMS
-  0.026 pixel for 30-60 matches, 0.010 for 150-400; about twice the noise's part in both), the signature of
-  errors correlated over the whole overlap rather than of a field of fixed size. So per pair and axis an affine
-  field whose offset and gradients have η_o and η_g times the variance (Xᵀ W X)⁻¹ that the pair's own matches give
-  them, propagated through the adjustment (:func:`systematic_tie_covariance`; ``tie_offset_factor``,
-  ``tie_gradient_factor``).
+* **Systematic tie errors**: the sub-pixel bias of the matches varies with the sampling phase, so each pair's
+  errors carry a common part: the scan-model unknowns absorb it (it never shows in the residuals, and the estimated
+  variance factor does not see it) and it moves the relative geometry. Removing each pair's affine field (known from
+  the truth) cut the drift error of four sequences from 73-320 m to 14-51 m. The part is not of one size: fitted as
+  an affine field to the true errors, its offset is 3 times larger (η_o 45 against 15 in units of the pair's own
+  (Xᵀ W X)⁻¹) on ties matched through predicted orbits than on ties matched through per-image fits of the same
+  images, because it follows d, the shift the matcher had to find between where the models it matched through put
+  the correspondent and where it is: binned by the fractional part of d, the true errors' mean swings by ±0.015-0.02
+  pixel, and a predicted orbit errs by nearly a shift (d varies by 0.02-0.3 pixel over a pair's overlap, the pair
+  gets one bias), a per-image fit also in rotation and scale (0.05-1.2 pixel, the bias averages out; two of the
+  tuning seeds, standard deviations of d over each pair's matches). So per pair and
+  axis a field c₁ cos 2πd + c₂ sin 2πd with c ~ N(0, σ_φ²), d from the starting and the adjusted models, propagated
+  through the adjustment (:func:`phase_tie_covariance`; ``tie_phase_sigma``); with it the stated drift σ depends less
+  on how the ties were matched (stated / empirical 1.05 with 12 control points, 0.92-0.95 with 4 / 2 / 0 on
+  the tuning seeds, where the affine field of η 13 / 8 gives 1.19 and 0.92-0.94). The affine field (η_o and η_g
+  times the variance (Xᵀ W X)⁻¹ that the pair's own matches give its coefficients,
+  :func:`systematic_tie_covariance`; ``tie_offset_factor``, ``tie_gradient_factor``) stays available, 0 by default.
+  Measured in the drift they cause, the pair fields of different pairs are not positively correlated: their
+  cross terms are −2 to −10 % of the sum of the pairs' own (tuning seeds, each control count).
 
 Both are added to the covariance (``SequenceAdjustment.systematic``); the estimates stay those of the weighted
 adjustment.
@@ -102,17 +110,31 @@ class SequenceOptions:
             matches of simulated sequences (10 sequences of 3 images of 256 pixels, 100 pair axes of ≥ 30 ties):
             1 + Σ_j ρ_ij over the other matches within one template width (15 pixels) after each pair's affine
             field is removed, median 2.6, mean 2.6. 1: independent (ties simulated that way).
-        tie_offset_factor, tie_gradient_factor: η_o, η_g, the size of the systematic error common to the matches
-            of one image pair (module docstring, «Systematic tie errors»): per pair and image axis an affine field
-            whose offset and gradients have η_o and η_g times the variance that the pair's matches would give them
-            were their errors independent of their final σ, added to the covariance. The default is measured on
-            :func:`~seaice_jax.imagery.ties.find_ties` matches of simulated Lancaster-like sequences (seeds
-            100-109 of ``experiments/sequence_block.py``: 4 images of 256 pixels, 12 control points; 204 pair
-            axes of ≥ 30 matches), against the true correspondents: the affine fit of each pair's true errors
-            beside the matches' own noise (κ times the fit's residual variance) gives η_o 12.9 (90 % bootstrap
-            over the sequences 10.3-16.5), η_g 7.8 (4.1-10.2), about the same for 30-60 matches as for 150-400
-            (on 10 fresh sequences, seeds 200-209 on the GSHHG coast: 16.0 / 9.5). ``0, 0``: independent tie
-            errors (ties simulated that way, or a matcher shown to have none).
+        tie_offset_factor, tie_gradient_factor: η_o, η_g, the size of a systematic error common to the matches
+            of one image pair as an affine field (module docstring, «Systematic tie errors»): per pair and image
+            axis an affine field whose offset and gradients have η_o and η_g times the variance that the pair's
+            matches would give them were their errors independent of their final σ, added to the covariance.
+            Default 0 (none): the pair fields of :func:`~seaice_jax.imagery.ties.find_ties` matches are the
+            sub-pixel bias of ``tie_phase_sigma``, whose size depends on how the models the ties were matched
+            through err, not on the number of matches (fitted to the true tie errors of the tuning seeds 100-109
+            of ``experiments/sequence_block.py``, 240 pair axes per tie set: η_o 14.6, η_g 3.8 on ties matched
+            through the per-image fits, η_o 44.9, η_g 3.3 on ties matched through predicted orbits; with η 13 / 8,
+            the former default measured on the first kind, the stated / empirical drift σ is 1.19 with 12 control
+            points and 0.92-0.94 with 4 / 2 / 0). For matchers shown to have fields of that kind.
+        tie_phase_sigma: pixels, σ of the matches' sub-pixel bias as a function of the sampling phase (module
+            docstring, «Systematic tie errors»; :func:`phase_tie_covariance`): per pair and axis of the matched
+            image, c₁ cos 2πd + c₂ sin 2πd with c ~ N(0, σ²), d the shift between where the starting models put a
+            match and where the adjusted models do (the models passed to :func:`adjust_sequence` must be those the
+            ties were matched through). The default is measured on :func:`~seaice_jax.imagery.ties.find_ties`
+            matches of simulated Lancaster-like sequences (tuning seeds 100-109 of ``experiments/sequence_block.py``,
+            4 images of 256 pixels, GSHHG coast; 480 pair axes of ≥ 30 matches, through the per-image fits and
+            through predicted orbits) against the true correspondents: the part of each pair axis's true errors
+            on cos 2πd, sin 2πd beside the matches' own noise (``tie_correlation`` times the residual variance),
+            0.0182 pixel (90 % bootstrap over the sequences 0.0171-0.0194; 0.0155 through the per-image fits,
+            0.0205 through the predicted orbits). With it and ``tie_correlation`` (no affine fields) the stated /
+            empirical drift σ on those seeds is 1.05 / 0.95 / 0.93 / 0.92 with 12 / 4 / 2 / 0 control points (90 %
+            bootstrap over the sequences 0.94-1.21 / 0.83-1.13 / 0.82-1.07 / 0.80-1.10). 0: none (ties simulated
+            with independent errors).
     """
 
     alpha: float = DEFAULT_ALPHA
@@ -124,8 +146,9 @@ class SequenceOptions:
     variance_groups: tuple[str, ...] = ("ties",)
     variance_tolerance: float = 0.01
     tie_correlation: float = 2.5
-    tie_offset_factor: float = 13.0
-    tie_gradient_factor: float = 8.0
+    tie_offset_factor: float = 0.0
+    tie_gradient_factor: float = 0.0
+    tie_phase_sigma: float = 0.018
 
     def __post_init__(self):
         if not 0 < self.alpha < 1:
@@ -135,6 +158,8 @@ class SequenceOptions:
         if not (self.tie_offset_factor >= 0 and self.tie_gradient_factor >= 0):
             raise SeaiceError(f"tie_offset_factor and tie_gradient_factor must be >= 0, got "
                               f"{self.tie_offset_factor} and {self.tie_gradient_factor}")
+        if not self.tie_phase_sigma >= 0:
+            raise SeaiceError(f"tie_phase_sigma must be >= 0 pixels, got {self.tie_phase_sigma}")
         if not 0 < self.batch <= 1:
             raise SeaiceError(f"batch must be in (0, 1], got {self.batch}")
         if self.robust is not None and self.robust not in ROBUST:
@@ -273,6 +298,66 @@ def _pair_fields(pixel, scan, pair, sizes, whitened, factors):
     return np.einsum("mac,macd->mad", field, root[pair])
 
 
+def _tie_rows(problem: Problem, result: engine.Adjustment, n_ties: int):
+    """The live tie rows of ``problem`` at ``result``'s solution (padding and removed ties left out): whitened
+    J_θ ``(m, 2, 5)``, J_p ``(m, 2, 2)``, θ indices ``(m, 5)``, tie ``(m,)``, weights ``(m, 2)``, pixel and scan
+    ``(m,)``."""
+    theta, points = result.parameters["theta"], result.parameters["points"]
+    rows = []
+    for block in problem.blocks.values():
+        if block.point_index is None:
+            continue
+        linear = _linearize(block, theta, points)
+        tie = np.asarray(block.point_index)
+        live = (tie < n_ties) & np.asarray(weights(block) > 0).all(axis=1)
+        rows.append((np.asarray(linear.theta)[live], np.asarray(linear.point)[live],
+                     np.asarray(block.global_index)[live], tie[live], np.asarray(weights(block))[live],
+                     np.asarray(block.data["pixel"])[live], np.asarray(block.data["scan"])[live]))
+    return tuple(np.concatenate(a) for a in zip(*rows, strict=True))
+
+
+def _field_pull(rows, n_ties: int, size: int, matched, pair, field) -> np.ndarray:
+    """``(size, 2 C P)`` Āᵀ W u per coefficient of the pairs' error fields: ``field (k, 2, C)`` the whitened values
+    u/σ of the C coefficients' basis on the ``matched`` rows (per axis of the matched image), ``pair (k,)`` their
+    pair 0..P−1 (column (2 pair + axis) C + coefficient). Ā is the tie rows' design with the tie points eliminated
+    tie by tie: the field's direct pull J_θᵀ W u on the matched image, less the tie point's response
+    (J_pᵀ W J_p)⁻¹ J_pᵀ W u pulling every observation of the tie."""
+    j_theta, j_point, index, tie = rows[:4]
+    count = field.shape[2]
+    column = np.broadcast_to(((2 * pair[:, None, None] + np.arange(2)[:, None]) * count + np.arange(count))[..., None],
+                             (matched.size, 2, count, UNKNOWNS_PER_IMAGE))  # (k, axis, coefficient, θ of the image)
+    right = np.zeros((size, 2 * count * (int(pair.max()) + 1)))
+    np.add.at(right, (np.broadcast_to(index[matched][:, None, None, :], column.shape).reshape(-1),
+                      column.reshape(-1)),
+              np.einsum("mai,mac->maci", j_theta[matched], field).reshape(-1))
+    normal = np.zeros((n_ties, 2, 2))
+    np.add.at(normal, tie, np.einsum("mci,mcj->mij", j_point, j_point))
+    inverse = np.linalg.pinv(normal)
+    shift = np.einsum("mde,mae,mac->mdac", inverse[tie[matched]], j_point[matched], field)  # (k, 2, 2, C)
+    coupling = np.einsum("mei,med->mid", j_theta, j_point)  # (m, 5, 2): J_θᵀ W J_p per observation
+    order = np.argsort(tie, kind="stable")
+    start = np.searchsorted(tie[order], np.arange(n_ties))
+    seen = np.bincount(tie, minlength=n_ties)
+    for position in range(int(seen.max())):
+        has = seen[tie[matched]] > position
+        other = order[start[tie[matched[has]]] + position]  # the position-th observation of each matched tie
+        values = -np.einsum("mid,mdac->maci", coupling[other], shift[has])
+        np.add.at(right, (np.broadcast_to(index[other][:, None, None, :], values.shape).reshape(-1),
+                          column[has].reshape(-1)), values.reshape(-1))
+    return right
+
+
+def _matched_pairs(rows, reference_image):
+    """The matched rows (image ≠ its tie's reference image), their images, and per row the pair number of
+    (reference image, matched image) with the ``(P, 2)`` pairs."""
+    index, tie = rows[2], rows[3]
+    image = index[:, 0] // UNKNOWNS_PER_IMAGE
+    matched = np.nonzero(image != reference_image[tie])[0]
+    pairs, pair = np.unique(np.stack([reference_image[tie[matched]], image[matched]], 1), axis=0,
+                            return_inverse=True)
+    return matched, image, pairs, pair.ravel()
+
+
 def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, reference_image, sizes, cofactor,
                               offset_factor: float, gradient_factor: float) -> np.ndarray:
     """``(n, n)`` covariance of the estimated θ due to a systematic error field of the tie matches (module
@@ -294,51 +379,65 @@ def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, refer
     size = cofactor.shape[0]
     if not (offset_factor > 0 or gradient_factor > 0):
         return np.zeros((size, size))
-    theta, points = result.parameters["theta"], result.parameters["points"]
     reference_image, n_ties = np.asarray(reference_image), int(np.asarray(reference_image).size)
-    rows = []  # per tie block: whitened J_θ (m, 2, 5), J_p (m, 2, 2), θ indices (m, 5), tie (m,), weights (m, 2)
-    for block in problem.blocks.values():
-        if block.point_index is None:
-            continue
-        linear = _linearize(block, theta, points)
-        tie = np.asarray(block.point_index)
-        live = (tie < n_ties) & np.asarray(weights(block) > 0).all(axis=1)  # padding and removed ties: never
-        rows.append((np.asarray(linear.theta)[live], np.asarray(linear.point)[live],
-                     np.asarray(block.global_index)[live], tie[live], np.asarray(weights(block))[live],
-                     np.asarray(block.data["pixel"])[live], np.asarray(block.data["scan"])[live]))
-    j_theta, j_point, index, tie, weight, pixel, scan = (np.concatenate(a) for a in zip(*rows, strict=True))
-    image = index[:, 0] // UNKNOWNS_PER_IMAGE
-    matched = np.nonzero(image != reference_image[tie])[0]
+    rows = _tie_rows(problem, result, n_ties)
+    matched, image, _, pair = _matched_pairs(rows, reference_image)
     if matched.size == 0:
         return np.zeros((size, size))
-    pairs, pair = np.unique(np.stack([reference_image[tie[matched]], image[matched]], 1), axis=0,
-                            return_inverse=True)
-    pair = pair.ravel()
+    weight, pixel, scan = rows[4:]
     field = _pair_fields(pixel[matched], scan[matched], pair, np.asarray(sizes)[image[matched]],
                          weight[matched], (offset_factor, gradient_factor, gradient_factor))  # (k, 2, 3)
-    column = np.broadcast_to((6 * pair[:, None, None] + 3 * np.arange(2)[:, None] + np.arange(3))[..., None],
-                             (matched.size, 2, 3, UNKNOWNS_PER_IMAGE))  # (k, axis, coefficient, θ of the image)
-    right = np.zeros((size, 6 * pairs.shape[0]))
-    # the field's direct pull on the matched image: J_θᵀ W u
-    np.add.at(right, (np.broadcast_to(index[matched][:, None, None, :], column.shape).reshape(-1),
-                      column.reshape(-1)),
-              np.einsum("mai,mac->maci", j_theta[matched], field).reshape(-1))
-    # the tie points' response, − (J_pᵀ W J_p)⁻¹ J_pᵀ W u per tie, pulls every observation of the tie
-    normal = np.zeros((n_ties, 2, 2))
-    np.add.at(normal, tie, np.einsum("mci,mcj->mij", j_point, j_point))
-    inverse = np.linalg.pinv(normal)
-    shift = np.einsum("mde,mae,mac->mdac", inverse[tie[matched]], j_point[matched], field)  # (k, 2, 2, 3)
-    coupling = np.einsum("mei,med->mid", j_theta, j_point)  # (m, 5, 2): J_θᵀ W J_p per observation
-    order = np.argsort(tie, kind="stable")
-    start = np.searchsorted(tie[order], np.arange(n_ties))
-    seen = np.bincount(tie, minlength=n_ties)
-    for position in range(int(seen.max())):
-        has = seen[tie[matched]] > position
-        other = order[start[tie[matched[has]]] + position]  # the position-th observation of each matched tie
-        values = -np.einsum("mid,mdac->maci", coupling[other], shift[has])
-        np.add.at(right, (np.broadcast_to(index[other][:, None, None, :], values.shape).reshape(-1),
-                          column[has].reshape(-1)), values.reshape(-1))
-    gain = cofactor @ right
+    gain = cofactor @ _field_pull(rows, n_ties, size, matched, pair, field)
+    return gain @ gain.T
+
+
+def phase_tie_covariance(problem: Problem, result: engine.Adjustment, observations: SequenceObservations, cofactor,
+                         phase_sigma: float) -> np.ndarray:
+    """``(n, n)`` covariance of the estimated θ due to the matches' sub-pixel bias as a function of the sampling
+    phase (module docstring, «Systematic tie errors»): for every pair (reference image a, matched image b) and axis
+    α of b, the field u = c₁ cos 2πd_α + c₂ sin 2πd_α, c ~ N(0, ``phase_sigma``² I) (pixels), on b's observations
+    of the ties matched against a; d ``(2,)`` pixels, where the starting models (``observations.models``, those
+    the ties were matched through) put the reference observation's correspondent in b, less where the adjusted
+    models put it (the shift the matcher had to find). A pair whose d hardly varies over the overlap gets one
+    bias of σ ``phase_sigma`` on all its matches; one whose d sweeps through a pixel averages it out. Propagated
+    as :func:`systematic_tie_covariance` propagates its fields: Σ g gᵀ, g = Q Āᵀ W u per coefficient.
+
+    Args:
+        problem: the final problem. result: its adjustment. observations: the sequence's observations (their
+            ``models`` the starting models, ``reference_image``). cofactor: ``(n, n)`` Q of ``problem``.
+        phase_sigma: pixels (:class:`SequenceOptions` ``tie_phase_sigma``).
+    """
+    size = cofactor.shape[0]
+    if not phase_sigma > 0:
+        return np.zeros((size, size))
+    reference_image = np.asarray(observations.reference_image)
+    n_ties = int(reference_image.size)
+    rows = _tie_rows(problem, result, n_ties)
+    matched, image, _, pair = _matched_pairs(rows, reference_image)
+    if matched.size == 0:
+        return np.zeros((size, size))
+    tie, weight, pixel, scan = rows[3], rows[4], rows[5], rows[6]
+    reference = np.nonzero(image == reference_image[tie])[0]
+    reference_pixel, reference_scan = np.zeros(n_ties), np.zeros(n_ties)
+    reference_pixel[tie[reference]], reference_scan[tie[reference]] = pixel[reference], scan[reference]
+    adjusted = observations.models_at(jnp.asarray(result.parameters["theta"]).reshape(-1, UNKNOWNS_PER_IMAGE))
+    first, second = reference_image[tie[matched]], image[matched]
+    where = []
+    for models in (observations.models, adjusted):  # q through the reference image's model, then b's inverse
+        ground, carried = np.zeros((2, matched.size)), np.zeros((matched.size, 2))
+        for k in np.unique(first):
+            pick = first == k
+            ground[:, pick] = [np.asarray(v) for v in models[k].forward(reference_pixel[tie[matched[pick]]],
+                                                                         reference_scan[tie[matched[pick]]])]
+        for k in np.unique(second):
+            pick = second == k
+            carried[pick] = np.stack([np.asarray(v) for v in models[k].inverse(*ground[:, pick])], 1)
+        where.append(carried)
+    shift = where[0] - where[1]
+    phase = 2 * np.pi * shift
+    field = (phase_sigma * np.stack([np.cos(phase), np.sin(phase)], -1)
+             * weight[matched][..., None])  # (k, 2, 2)
+    gain = cofactor @ _field_pull(rows, n_ties, size, matched, pair, field)
     return gain @ gain.T
 
 
@@ -386,8 +485,9 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     removed = np.zeros(problem.points.shape[0], bool)
     order: list[int] = []
     rounds = 0
+    previous = None  # every round starts from the previous round's estimates (a few ties fewer, or rescaled σ)
     if options.robust is not None:
-        robust = robust_adjustment(problem, options.robust, engine_options, names)
+        robust = previous = robust_adjustment(problem, options.robust, engine_options, names)
         rounds += 1
         for name, block in problem.blocks.items():
             if block.point_index is not None and robust.robust_weights is not None:
@@ -403,7 +503,7 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     factors = dict.fromkeys(estimated, 1.0)
     settled = not estimated
     for _ in range(options.max_rounds):
-        current = _without(problem, removed)
+        current = engine.rescaled(_without(problem, removed), {}, previous)
         result = engine.solve(current, engine_options, names)
         rounds += 1
         if not bool(result.converged):
@@ -411,8 +511,9 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
                                    f"(round {rounds}, {int(removed.sum())} ties removed)")
         worst = _worst_ties(current, result, options.alpha, options.batch)
         if not worst and not settled:
-            result = variance_components(current, engine_options, names, groups=estimated, pooled=pooled,
-                                         tolerance=options.variance_tolerance, max_rounds=options.max_rounds)
+            result = variance_components(engine.rescaled(current, {}, result), engine_options, names,
+                                         groups=estimated, pooled=pooled, tolerance=options.variance_tolerance,
+                                         max_rounds=options.max_rounds)
             change = {n: component.value for label, component in result.variance_components.items()
                       for n in label.split("+")}
             factors = {n: factors[n] * change[n] for n in estimated}
@@ -422,6 +523,7 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
             worst = _worst_ties(current, result, options.alpha, options.batch)
         if not worst:
             break
+        previous = result
         removed[worst] = True
         order += worst
         settled = not estimated
@@ -441,7 +543,8 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     systematic = (correlated_tie_covariance(current, result, cofactor, 1.0 if estimated else float(result.sigma0) ** 2,
                                             options.tie_correlation)
                   + systematic_tie_covariance(current, result, observations.reference_image, sizes, cofactor,
-                                              options.tie_offset_factor, options.tie_gradient_factor))
+                                              options.tie_offset_factor, options.tie_gradient_factor)
+                  + phase_tie_covariance(current, result, observations, cofactor, options.tie_phase_sigma))
     return SequenceAdjustment(
         tuple(observations.models_at(jnp.asarray(theta))), theta, covariance + systematic,
         np.asarray(result.cofactor), systematic, float(result.sigma0), result.degrees_of_freedom, latitude, longitude,
