@@ -189,30 +189,3 @@ def test_geojson_layers_have_one_geometry_type_each(tmp_path):
     assert first["geometry"]["coordinates"][0] == pytest.approx([-85.0, 74.0])
     fixes = json.loads((tmp_path / "f.geojson").read_text())["features"]
     assert [f["properties"]["sequence"] for f in fixes if f["properties"]["floe_id"] == "F1"] == [0, 1, 2]
-
-
-def test_track_layout_osisaf_writes_both_layouts_of_the_same_vectors(tmp_path):
-    import pyogrio
-    import xarray as xr
-
-    from seaice_jax.cli import main
-    from seaice_jax.io.products import TO_OSISAF_STATUS
-    from seaice_jax.simulate.satellite import simulate_sequence
-    from seaice_jax.workflows.image_sequence import write_simulated_sequence
-
-    project = write_simulated_sequence(tmp_path / "project", sequence=simulate_sequence(5, n_images=2, size=128))
-    assert main(["remap", str(project), "--out", str(tmp_path / "remapped"), "--quiet"]) == 0
-    assert main(["track", str(tmp_path / "remapped"), "--out", str(tmp_path / "drift"), "--quiet", "--layout",
-                 "osisaf"]) == 0
-    (own_path,) = (tmp_path / "drift").glob("drift_*[!f].nc")
-    (osi_path,) = (tmp_path / "drift").glob("drift_*_osisaf.nc")
-    assert osi_path.name == own_path.stem + "_osisaf.nc"
-    with xr.open_dataset(own_path) as own, xr.open_dataset(osi_path) as osi:
-        good = np.isfinite(own["dX"].values)
-        assert good.sum() > 10
-        np.testing.assert_allclose(osi["dX"].values[good] * 1000.0, own["dX"].values[good], rtol=1e-6)
-        expected = np.vectorize(TO_OSISAF_STATUS.get)(own["status_flag"].values)
-        np.testing.assert_array_equal(osi["status_flag"].values, expected)
-        assert osi["dX"].attrs["units"] == "km" and osi["time_bnds"].equals(own["time_bnds"])
-    assert pyogrio.read_info(tmp_path / "drift" / "fixes.geojson")["geometry_type"] == "Point"
-    assert pyogrio.read_info(tmp_path / "drift" / "trajectories.geojson")["geometry_type"] == "LineString"

@@ -72,6 +72,35 @@ def test_track_writes_cf_drift_whose_vectors_follow_the_ice(workflow):
                for f in collection["features"])
 
 
+def test_track_layout_osisaf_writes_both_layouts_of_the_same_vectors(workflow, tmp_path):
+    """``--layout osisaf`` on the remapped sequence: the OSI SAF file beside each project-layout file, with the
+    vectors of the project layout (in km) and its status codes; the project-layout file that of the default run."""
+    import pyogrio
+    import xarray as xr
+
+    from seaice_jax.io.products import TO_OSISAF_STATUS
+
+    root, _ = workflow
+    assert main(["track", str(root / "remapped"), "--out", str(tmp_path / "drift"), "--quiet", "--layout",
+                 "osisaf"]) == 0
+    own_paths = sorted((tmp_path / "drift").glob("drift_*[!f].nc"))
+    assert [p.name for p in own_paths] == ["drift_IMG01_IMG02.nc", "drift_IMG02_IMG03.nc"]
+    for own_path in own_paths:
+        osi_path = own_path.with_name(own_path.stem + "_osisaf.nc")
+        with (xr.open_dataset(own_path) as own, xr.open_dataset(osi_path) as osi,
+              xr.open_dataset(root / "drift" / own_path.name) as default):
+            good = np.isfinite(own["dX"].values)
+            assert good.sum() > 10
+            np.testing.assert_array_equal(own["dX"].values, default["dX"].values)
+            np.testing.assert_allclose(osi["dX"].values[good] * 1000.0, own["dX"].values[good], rtol=1e-6)
+            expected = np.vectorize(TO_OSISAF_STATUS.get)(own["status_flag"].values)
+            np.testing.assert_array_equal(osi["status_flag"].values, expected)
+            assert osi["dX"].attrs["units"] == "km" and osi["time_bnds"].equals(own["time_bnds"])
+    assert not list((root / "drift").glob("*_osisaf.nc"))  # the default layout writes no OSI SAF file
+    assert pyogrio.read_info(tmp_path / "drift" / "fixes.geojson")["geometry_type"] == "Point"
+    assert pyogrio.read_info(tmp_path / "drift" / "trajectories.geojson")["geometry_type"] == "LineString"
+
+
 def test_velocities_and_film(workflow):
     from PIL import Image
 
