@@ -1,12 +1,20 @@
-"""The dense backend: the whole whitened Jacobian, QR of its column-scaled form, SVD of the triangle.
+"""The dense backend: the whole whitened Jacobian, its column-scaled form's singular value decomposition.
 
-With J D⁻¹ = Q R (D the column norms: units drop out) and R = U S Vᵀ, the damped step is
-Δ = −D⁻¹ V S (S² + λ)⁻¹ (QU)ᵀ e, the cofactor of the unknowns (JᵀJ)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ and the hat matrix's
-diagonal ‖(QU)_i‖², all from the factors: the normal matrix is never formed (its condition is the square of
+With J D⁻¹ = W S Vᵀ (D the column norms: units drop out; W = QU the left singular vectors), the damped step is
+Δ = −D⁻¹ V S (S² + λ)⁻¹ Wᵀ e, the cofactor of the unknowns (JᵀJ)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ and the hat matrix's
+diagonal ‖W_i‖², all from the factors: the normal matrix is never formed (its condition is the square of
 J's), so a problem with cond(J) = 1e8 keeps its digits. Singular values below ``RANK_TOLERANCE`` · s_max are
 dropped (a minimum-norm step in an undetermined direction; the engine then names the parameters involved).
+
+Two ways to the same factors (:data:`FACTORIZATIONS`): ``"lapack"`` (the default), QR of J D⁻¹ and SVD of its
+triangle (LAPACK: the fastest for one problem, but under ``vmap`` XLA on CPU runs these calls matrix by matrix), and
+``"jacobi"``, one-sided Jacobi rotations of the columns of J D⁻¹ until they are orthogonal (Hestenes 1958; Demmel &
+Veselić 1992: the small singular values to high relative accuracy) written in elementwise operations, which
+vectorize across the lanes of a batch: for a batch of small problems (up to :data:`JACOBI_LIMIT` unknowns, LAPACK
+beyond; a sweep's cost and code grow with their square).
 """
 
+import jax
 import jax.numpy as jnp
 
 from seaice_jax.adjust.problem import Problem
@@ -14,6 +22,18 @@ from seaice_jax.adjust.problem import Problem
 RANK_TOLERANCE = 1e-12
 """Relative singular value of the column-scaled Jacobian below which a direction counts as undetermined: about
 100 × the float64 roundoff of a Jacobian computed to full precision (κ > 1e12 leaves no digit in σ)."""
+FACTORIZATIONS = ("lapack", "jacobi")
+JACOBI_LIMIT = 8
+"""Unknowns up to which ``factorization="jacobi"`` takes the Jacobi rotations (a handful of unknowns: an image's
+scan model, a curve fit), beyond which LAPACK's QR and SVD."""
+JACOBI_SWEEPS = 30
+"""Most sweeps of the Jacobi rotations (LAPACK's ``dgesvj`` cap; a sweep rotates every pair of columns once; the
+convergence is quadratic: 4-7 sweeps from an arbitrary matrix, one from the previous iteration's rotation)."""
+STEP_ORTHOGONALITY = 1e-6
+"""|cos| between two rotated columns at which the Jacobi rotations of an iteration's step stop (the statistics
+rotate to roundoff): the step is then exact to about this relative accuracy, which leaves Gauss-Newton's
+convergence and its fixed point (Jᵀe = 0) as they were, and from the previous iteration's rotation one sweep
+reaches it. The test is relative, so a dependent column is still rotated down to roundoff (the rank is kept)."""
 
 
 def columns(problem: Problem, block):
@@ -47,16 +67,97 @@ def column_norms(jacobian):
     return jnp.linalg.norm(jacobian, axis=0)
 
 
-class Factors:
-    """Column scales, left singular vectors ``(M, N)`` of J D⁻¹, singular values ``(N,)``, right vectors."""
+def uses_jacobi(factorization: str, unknowns: int) -> bool:
+    """Whether ``factorization`` (one of :data:`FACTORIZATIONS`) takes the Jacobi rotations for this many
+    unknowns."""
+    return factorization == "jacobi" and unknowns <= JACOBI_LIMIT
 
-    def __init__(self, jacobian, scale=None):
+
+def _dot(a, b):
+    """Σ a b over the rows (an elementwise product and a sum: no matrix call under ``vmap``)."""
+    return jnp.sum(a * b, axis=0)
+
+
+def _rotation(a, b, tolerance):
+    """cos and sin of the plane rotation that makes columns ``a`` and ``b`` orthogonal (Rutishauser's form: the
+    smaller angle, |t| ≤ 1); none (cos 1, sin 0) where they already are (|aᵀb| ≤ tolerance · ‖a‖ ‖b‖)."""
+    alpha, beta, gamma = _dot(a, a), _dot(b, b), _dot(a, b)
+    needed = jnp.abs(gamma) > tolerance * jnp.sqrt(alpha * beta)
+    zeta = (beta - alpha) / jnp.where(needed, 2.0 * gamma, 1.0)
+    size = jnp.minimum(jnp.abs(zeta), 1e150)  # ζ² would overflow; beyond, the rotation is the identity to roundoff
+    tangent = jnp.where(needed, jnp.where(zeta >= 0, 1.0, -1.0) / (size + jnp.sqrt(1.0 + size**2)), 0.0)
+    cosine = 1.0 / jnp.sqrt(1.0 + tangent**2)
+    return cosine, cosine * tangent
+
+
+def _orthogonal(columns, tolerance):
+    """Whether every pair of ``columns`` is orthogonal to ``tolerance`` (the test :func:`_rotation` applies)."""
+    norms = [_dot(c, c) for c in columns]
+    return jnp.all(jnp.stack([jnp.abs(_dot(columns[p], columns[q])) <= tolerance * jnp.sqrt(norms[p] * norms[q])
+                              for p in range(len(columns)) for q in range(p + 1, len(columns))] + [True]))
+
+
+def jacobi_svd(matrix, rotation=None, orthogonality=None):
+    """Thin SVD of ``matrix`` ``(M, N)`` by one-sided (Hestenes) Jacobi rotations: ``(left (M, N), singular (N,),
+    vt (N, N))`` with matrix = left · diag(singular) · vt, the singular values in no particular order (a zero one
+    has a zero left vector).
+
+    The columns of ``matrix · V`` are rotated pairwise, a sweep through every pair at a time, until every pair is
+    orthogonal to ``orthogonality`` (|cos| of their angle; default √M·ε, roundoff) or :data:`JACOBI_SWEEPS`
+    sweeps; then the singular values are the columns' norms,
+    the left vectors the columns normalized and V the product of the rotations. ``rotation`` ``(N, N)``, an
+    orthogonal V to start from (the previous iteration's: a Jacobian that changed little needs a sweep), else the
+    identity. Elementwise operations and sums only: under ``vmap`` they vectorize across the lanes.
+    """
+    rows, size = matrix.shape
+    start = matrix if rotation is None else matrix @ rotation
+    rotation = jnp.eye(size) if rotation is None else rotation
+    tolerance = jnp.sqrt(float(max(rows, 1))) * jnp.finfo(matrix.dtype).eps if orthogonality is None else orthogonality
+
+    def sweep(state):
+        columns, vectors, sweeps = list(state[0]), list(state[1]), state[2]
+        for p in range(size - 1):
+            for q in range(p + 1, size):
+                cosine, sine = _rotation(columns[p], columns[q], tolerance)
+                columns[p], columns[q] = (cosine * columns[p] - sine * columns[q],
+                                          sine * columns[p] + cosine * columns[q])
+                vectors[p], vectors[q] = (cosine * vectors[p] - sine * vectors[q],
+                                          sine * vectors[p] + cosine * vectors[q])
+        return tuple(columns), tuple(vectors), sweeps + 1
+
+    def running(state):
+        return (state[2] < JACOBI_SWEEPS) & ~_orthogonal(state[0], tolerance)
+
+    columns, vectors, _ = jax.lax.while_loop(running, sweep, (
+        tuple(start[:, k] for k in range(size)), tuple(rotation[:, k] for k in range(size)), jnp.zeros((), int)))
+    singular = jnp.sqrt(jnp.stack([_dot(c, c) for c in columns]))
+    left = jnp.stack(columns, axis=1) / jnp.where(singular > 0, singular, 1.0)[None, :]
+    return left, singular, jnp.stack(vectors)
+
+
+class Factors:
+    """Column scales, left singular vectors ``(M, N)`` of J D⁻¹, singular values ``(N,)`` (largest first from
+    LAPACK, in no particular order from the Jacobi rotations), right vectors ``vt`` ``(N, N)``.
+
+    Args:
+        jacobian: ``(M, N)`` whitened Jacobian.
+        scale: ``(N,)`` column scales D (default: the column norms).
+        factorization: one of :data:`FACTORIZATIONS`.
+        rotation: for the Jacobi rotations, a V ``(N, N)`` to start from (e.g. the previous iteration's ``vt.T``).
+        orthogonality: for the Jacobi rotations, where they stop (:func:`jacobi_svd`; default: at roundoff).
+    """
+
+    def __init__(self, jacobian, scale=None, factorization: str = "lapack", rotation=None, orthogonality=None):
         scale = column_norms(jacobian) if scale is None else scale
         self.scale = jnp.where(scale > 0, scale, 1.0)
-        q, r = jnp.linalg.qr(jacobian / self.scale[None, :])
-        u, self.singular, self.vt = jnp.linalg.svd(r)
-        self.left = q @ u
-        self.kept = self.singular > RANK_TOLERANCE * self.singular[0]
+        scaled = jacobian / self.scale[None, :]
+        if uses_jacobi(factorization, scaled.shape[1]):
+            self.left, self.singular, self.vt = jacobi_svd(scaled, rotation, orthogonality)
+        else:
+            q, r = jnp.linalg.qr(scaled)
+            u, self.singular, self.vt = jnp.linalg.svd(r)
+            self.left = q @ u
+        self.kept = self.singular > RANK_TOLERANCE * jnp.max(self.singular, initial=0.0)
 
     def step(self, residuals, damping):
         """Δ ``(N,)`` minimising ‖e + JΔ‖² + λ‖DΔ‖²."""

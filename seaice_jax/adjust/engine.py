@@ -7,8 +7,11 @@ each lane stops when it has converged and no lane pays for another's damping. ``
 backend) bounds the column-scaled step by a radius instead (:mod:`.trust_region`, MINPACK's scheme): slower from
 some far starts a plain Gauss-Newton step would have handled, it solves the hard starts the damped loop runs away
 from or creeps along (all of NIST's StRD suite from both starts). The linear algebra is a backend:
-``"dense"`` (QR of the column-scaled Jacobian and SVD of its triangle, :mod:`.dense`) or ``"schur"`` (points
-eliminated, reduced system by Cholesky, :mod:`.schur`); :func:`choose_backend` picks by the size.
+``"dense"`` (the SVD of the column-scaled Jacobian, by LAPACK's QR and SVD or, for a handful of unknowns, by Jacobi
+rotations in elementwise operations that vectorize across a batch: :mod:`.dense`) or ``"schur"`` (points
+eliminated, reduced system by Cholesky, :mod:`.schur`); :func:`choose_backend` picks by the size. Each iteration
+linearizes once, at the trial point: its square sum decides the step, and an accepted step keeps its linearization
+for the next iteration (and, at the end, for the statistics), so no residual function is evaluated twice at a point.
 
 The result, :class:`Adjustment`, carries the estimates, their cofactor (JᵀPJ)⁻¹ and covariance σ̂0²(JᵀPJ)⁻¹,
 σ̂0, the degrees of freedom, and for every observation of every group: the residual v = computed − observed,
@@ -30,11 +33,12 @@ from jaxtyping import Array, Bool, Float, PyTree
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import dense, schur, trust_region
-from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, square_sum
+from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
 from seaice_jax.errors import SeaiceError
 
 BACKENDS = ("dense", "schur")
+FACTORIZATIONS = dense.FACTORIZATIONS
 STRATEGIES = ("damped", "trust-region")
 DENSE_LIMIT = 400
 """Unknowns up to which :func:`choose_backend` takes the dense backend (its cost grows with their cube)."""
@@ -82,6 +86,10 @@ class EngineOptions:
         initial_radius: the trust region's first radius in units of ‖D x₀‖ (D: the column norms; where x₀ = 0
             the first step is Gauss-Newton's). 1 (scipy's ``trf``) keeps the first step within the start's own
             size; MINPACK's 100 lets the first Gauss-Newton step through almost always (and BoxBOD start 1 off).
+        factorization: the dense backend's SVD (:data:`~seaice_jax.adjust.dense.FACTORIZATIONS`): ``"lapack"``
+            (the default: QR and SVD, the fastest for one problem) or ``"jacobi"`` (rotations in elementwise
+            operations: a batch of small problems under ``vmap`` at vector speed; up to
+            :data:`~seaice_jax.adjust.dense.JACOBI_LIMIT` unknowns, LAPACK beyond).
     """
 
     backend: str = "dense"
@@ -93,6 +101,7 @@ class EngineOptions:
     initial_damping: float = 0.0
     strategy: str = "damped"
     initial_radius: float = 1.0
+    factorization: str = "lapack"
 
     def __post_init__(self):
         if self.backend not in BACKENDS:
@@ -102,6 +111,8 @@ class EngineOptions:
         if self.strategy == "trust-region" and (self.backend != "dense" or not self.monotone):
             raise SeaiceError("EngineOptions.strategy='trust-region' needs backend='dense' and monotone=True (the "
                               "radius follows the decrease of the square sum the step predicts)")
+        if self.factorization not in FACTORIZATIONS:
+            raise SeaiceError(f"EngineOptions.factorization={self.factorization!r}: choose one of {FACTORIZATIONS}")
         if not self.initial_radius > 0:
             raise SeaiceError(f"EngineOptions.initial_radius={self.initial_radius}: must be > 0")
 
@@ -234,24 +245,34 @@ def degrees_of_freedom(problem: Problem) -> int:
     return observations - int(problem.start.shape[0]) - int(touched.sum()) * int(problem.points.shape[1])
 
 
-def _linear_step(problem: Problem, layout, backend: str, theta, points, damping, scale):
-    """The damped step, the square sum, the decrease it predicts, and the decrease the undamped (Gauss-Newton) step
-    predicts (the convergence test)."""
-    linear = linearize_all(problem, theta, points)
-    cost = sum(jnp.sum(lin.e**2) for lin in linear.values())
-    if backend == "dense":
+def _square_sum(linear: dict):
+    """Σ of the squared whitened residuals of a linearization (NaN if any is NaN)."""
+    return sum(jnp.sum(lin.e**2) for lin in linear.values())
+
+
+def _kept(accept, new, old):
+    """``new`` where the step was accepted, else ``old`` (pytrees of arrays)."""
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), new, old)
+
+
+def _linear_step(problem: Problem, layout, options: EngineOptions, linear, points_shape, damping, scale, rotation):
+    """The damped step from the linearization at the current point, the decrease it predicts, the decrease the
+    undamped (Gauss-Newton) step predicts (the convergence test), Moré's scales and the dense backend's right
+    singular vectors (the next Jacobi rotations start from them)."""
+    if options.backend == "dense":
         residuals, jacobian = dense.assemble(problem, linear)
         scale = jnp.maximum(scale, dense.column_norms(jacobian))
-        factors = dense.Factors(jacobian, scale)
+        factors = dense.Factors(jacobian, scale, options.factorization, rotation, dense.STEP_ORTHOGONALITY)
         delta = factors.step(residuals, damping)
-        n = theta.shape[0]
-        step_theta, step_points = delta[:n], delta[n:].reshape(points.shape)
+        n = problem.start.shape[0]
+        step_theta, step_points = delta[:n], delta[n:].reshape(points_shape)
         gauss_newton = factors.gauss_newton_decrease(residuals)
+        rotation = factors.vt.T
     else:
         step_theta, step_points = schur.step(problem, linear, layout, damping)
         gauss_newton = None
     gain = predicted_decrease(problem, linear, step_theta, step_points)
-    return step_theta, step_points, cost, gain, gain if gauss_newton is None else gauss_newton, scale
+    return step_theta, step_points, gain, gain if gauss_newton is None else gauss_newton, scale, rotation
 
 
 def _small(options: EngineOptions, step, value):
@@ -267,38 +288,46 @@ def _flat(options: EngineOptions, cost, gauss_newton, dof):
 
 
 def _iterate(problem: Problem, layout, options: EngineOptions, dof):
-    """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton)."""
+    """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton): the
+    estimates, their linearization, the dense backend's last right singular vectors, the steps and whether
+    converged."""
     if options.strategy == "trust-region":
         return _iterate_trust_region(problem, options, dof)
 
     def body(state):
-        theta, points, damping, growth, scale, steps, _, _ = state
-        step_theta, step_points, cost, gain, gauss_newton, scale = _linear_step(
-            problem, layout, options.backend, theta, points, damping, scale)
-        trial = square_sum(problem, theta + step_theta, points + step_points)
+        theta, points, linear, cost, damping, growth, scale, rotation, steps, _, _ = state
+        step_theta, step_points, gain, gauss_newton, scale, rotation = _linear_step(
+            problem, layout, options, linear, points.shape, damping, scale, rotation)
+        trial_linear = linearize_all(problem, theta + step_theta, points + step_points)
+        trial = _square_sum(trial_linear)
         within_noise = gauss_newton <= EVALUATION_NOISE * cost
         accept = jnp.isfinite(trial) & ((trial < cost) | within_noise | (not options.monotone))
         tiny = _small(options, step_theta, theta) & _small(options, step_points, points)
         converged = jnp.isfinite(cost) & (tiny | _flat(options, cost, gauss_newton, dof))
         theta = jnp.where(accept, theta + step_theta, theta)
         points = jnp.where(accept, points + step_points, points)
+        linear = _kept(accept, trial_linear, linear)
         ratio = (cost - trial) / jnp.maximum(gain, 1e-300)
         damping = jnp.where(accept, damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
                             jnp.where(damping == 0, INITIAL_DAMPING, damping * growth))
         growth = jnp.where(accept, 2.0, 2.0 * growth)
         # damped to nothing and still no decrease: no direction lowers the square sum beyond its roundoff
         converged = converged | ((damping > MAX_DAMPING) & jnp.isfinite(cost))
-        return theta, points, damping, growth, scale, steps + 1, converged | ~jnp.isfinite(cost), converged
+        cost = jnp.where(accept, trial, cost)
+        return (theta, points, linear, cost, damping, growth, scale, rotation, steps + 1,
+                converged | ~jnp.isfinite(cost), converged)
 
     def running(state):
-        return ~state[6] & (state[5] < options.max_steps)
+        return ~state[9] & (state[8] < options.max_steps)
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
-    start = (problem.start, problem.points, jnp.full((), options.initial_damping), jnp.full((), 2.0),
-             jnp.zeros(problem.unknowns),
-             jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
-    theta, points, _, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
-    return theta, points, steps, converged
+    linear = linearize_all(problem, problem.start, problem.points)
+    rotation = jnp.eye(problem.unknowns if options.backend == "dense" else 0)
+    start = (problem.start, problem.points, linear, _square_sum(linear), jnp.full((), options.initial_damping),
+             jnp.full((), 2.0), jnp.zeros(problem.unknowns), rotation, jnp.zeros((), int), jnp.zeros((), bool),
+             jnp.zeros((), bool))
+    theta, points, linear, _, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
+    return theta, points, linear, rotation, steps, converged
 
 
 def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
@@ -307,14 +336,14 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
     move an unknown beyond them."""
     n = problem.start.shape[0]
 
+    def unpacked(x):
+        return x[:n], x[n:].reshape(problem.points.shape)
+
     def body(state):
-        x, radius, scale, steps, _, _ = state
-        theta, points = x[:n], x[n:].reshape(problem.points.shape)
-        linear = linearize_all(problem, theta, points)
-        cost = sum(jnp.sum(lin.e**2) for lin in linear.values())
+        x, linear, cost, radius, scale, rotation, steps, _, _ = state
         residuals, jacobian = dense.assemble(problem, linear)
         scale = jnp.maximum(scale, dense.column_norms(jacobian))  # Moré's scaling, as the damped loop's
-        factors = dense.Factors(jacobian, scale)
+        factors = dense.Factors(jacobian, scale, options.factorization, rotation, dense.STEP_ORTHOGONALITY)
         projected = factors.left.T @ residuals
         radius = jnp.where(steps == 0, trust_region.initial_radius(
             jnp.linalg.norm(factors.scale * x), options.initial_radius,
@@ -322,9 +351,9 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
         damping = trust_region.damping_for_radius(factors.singular, projected, factors.kept, radius)
         step = factors.step(residuals, damping)
         norm = trust_region.step_norm(factors.singular, projected, factors.kept, damping)
-        step_points = step[n:].reshape(points.shape)
-        trial = square_sum(problem, theta + step[:n], points + step_points)
-        gain = predicted_decrease(problem, linear, step[:n], step_points)
+        trial_linear = linearize_all(problem, *unpacked(x + step))
+        trial = _square_sum(trial_linear)
+        gain = predicted_decrease(problem, linear, *unpacked(step))
         accept = jnp.isfinite(trial) & (trial < cost)
         ratio = jnp.where(jnp.isfinite(trial), (cost - trial) / jnp.maximum(gain, 1e-300), 0.0)
         radius = trust_region.updated_radius(radius, ratio, norm, damping)
@@ -333,25 +362,30 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
         converged = jnp.isfinite(cost) & (tiny | collapsed | _flat(options, cost, factors.gauss_newton_decrease(
             residuals), dof))
         x = jnp.where(accept, x + step, x)
-        return x, radius, scale, steps + 1, converged | ~jnp.isfinite(cost), converged
+        linear = _kept(accept, trial_linear, linear)
+        cost = jnp.where(accept, trial, cost)
+        return (x, linear, cost, radius, scale, factors.vt.T, steps + 1, converged | ~jnp.isfinite(cost),
+                converged)
 
     def running(state):
-        return ~state[4] & (state[3] < options.max_steps)
+        return ~state[7] & (state[6] < options.max_steps)
 
-    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), jnp.ones(()), jnp.zeros(problem.unknowns),
-             jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
-    x, _, _, steps, _, converged = jax.lax.while_loop(running, body, start)
-    return x[:n], x[n:].reshape(problem.points.shape), steps, converged
+    linear = linearize_all(problem, problem.start, problem.points)
+    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear, _square_sum(linear), jnp.ones(()),
+             jnp.zeros(problem.unknowns), jnp.eye(problem.unknowns), jnp.zeros((), int), jnp.zeros((), bool),
+             jnp.zeros((), bool))
+    x, linear, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
+    return *unpacked(x), linear, rotation, steps, converged
 
 
-def _statistics(problem: Problem, layout, backend: str, theta, points, cross_points):
-    """Cofactors, hat diagonals and w correlations at the solution."""
-    linear = linearize_all(problem, theta, points)
+def _statistics(problem: Problem, layout, options: EngineOptions, theta, points, linear, rotation, cross_points):
+    """Cofactors, hat diagonals and w correlations at the solution, from its linearization ``linear`` (the dense
+    backend's Jacobi rotations start from the last iteration's right singular vectors ``rotation``)."""
     n = theta.shape[0]
     count, d = points.shape
-    if backend == "dense":
-        residuals, jacobian = dense.assemble(problem, linear)
-        factors = dense.Factors(jacobian)
+    if options.backend == "dense":
+        _, jacobian = dense.assemble(problem, linear)
+        factors = dense.Factors(jacobian, factorization=options.factorization, rotation=rotation)
         full = factors.cofactor()
         hat_flat = factors.hat_diagonal()
         redundancy_flat = 1.0 - hat_flat
@@ -374,7 +408,7 @@ def _statistics(problem: Problem, layout, backend: str, theta, points, cross_poi
         runaway = ((jnp.sqrt(jnp.diagonal(full)[:n]) > RUNAWAY * jnp.abs(theta)) & (start != 0)
                    & (jnp.abs(theta) > jnp.abs(start)))
         undetermined = jnp.where(runaway, 1.0, factors.undetermined()[:n])
-        return linear, full[:n, :n], point_cofactor, cross, hats, correlations, partners, undetermined
+        return full[:n, :n], point_cofactor, cross, hats, correlations, partners, undetermined
     q, couple = schur.cofactors(problem, linear, layout)
     hats = schur.hat_diagonals(problem, linear, layout, q)
     redundancy = {k: jnp.where(jnp.isfinite(problem.blocks[k].sigma), 1.0 - h, 0.0) for k, h in hats.items()}
@@ -389,17 +423,17 @@ def _statistics(problem: Problem, layout, backend: str, theta, points, cross_poi
             correlations[name] = top[start:start + m, :c]
             partners[name] = partner[start:start + m, :c]
             start += m
-    return linear, q.theta, q.point, q.cross, hats, correlations, partners, jnp.zeros(n)
+    return q.theta, q.point, q.cross, hats, correlations, partners, jnp.zeros(n)
 
 
 @functools.partial(jax.jit, static_argnames=("options",))
 def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
     """The compiled solve (the degrees of freedom are traced: problems differing only in them share it); the
     result's names and static degrees of freedom are set by :func:`solve`."""
-    theta, points, steps, converged = _iterate(problem, layout, options, dof)
-    linear, cofactor, point_cofactor, cross, hats, correlations, partners, undetermined = _statistics(
-        problem, layout, options.backend, theta, points, cross_points)
-    square = sum(jnp.sum(lin.e**2) for lin in linear.values())
+    theta, points, linear, rotation, steps, converged = _iterate(problem, layout, options, dof)
+    cofactor, point_cofactor, cross, hats, correlations, partners, undetermined = _statistics(
+        problem, layout, options, theta, points, linear, rotation, cross_points)
+    square = _square_sum(linear)
     sigma0_squared = jnp.where(dof > 0, square / jnp.maximum(dof, 1), jnp.nan)
     out = {k: {} for k in ("v", "r", "w", "mdb", "error")}
     for name, block in problem.blocks.items():
