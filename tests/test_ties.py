@@ -8,7 +8,7 @@ import pytest
 from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import MapGrid
-from seaice_jax.imagery.ties import TieOptions, find_ties, grid_mask, transfer
+from seaice_jax.imagery.ties import TieOptions, find_ties, grid_mask, image_runs, transfer
 from seaice_jax.imagery.tracking import AT_EDGE, GOOD, LOW_CORRELATION, NO_DATA
 from seaice_jax.simulate.satellite import ice_scene, land_mask, simulate_sequence
 
@@ -162,3 +162,52 @@ def test_land_relief_is_static_and_deterministic():
     np.testing.assert_array_equal(np.asarray(first.brightness(land, 0.0)), np.asarray(first.brightness(land, 86400.0)))
     assert np.abs(np.asarray(first.brightness(pack, 0.0) - first.brightness(pack, 86400.0))).max() > 0.1
     assert float(np.std(np.asarray(first.brightness(land, 0.0)))) > 0.05  # relief texture, not a flat plateau
+
+
+@pytest.mark.parametrize("count", [2, 5, 6, 7, 12, 200])
+def test_image_runs_are_bounded_consecutive_and_chained(count):
+    """A point seen by ``count`` images (not in order, with gaps): runs of at most 6 of them, consecutive in
+    sequence order, each sharing its last image with the next run's first, covering every image once more per
+    join, of near-equal length; at most 6 images: one run."""
+    rng = np.random.default_rng(count)
+    images = rng.permutation(rng.choice(3 * count, count, replace=False))
+    runs = image_runs(images, 6)
+    ordered = np.sort(images)
+    assert all(2 <= run.size <= 6 for run in runs)
+    assert all(run[-1] == following[0] for run, following in zip(runs[:-1], runs[1:], strict=True))
+    np.testing.assert_array_equal(np.concatenate([runs[0]] + [run[1:] for run in runs[1:]]), ordered)
+    assert len(runs) == (1 if count <= 6 else -(-(count - 1) // 5))
+    assert max(run.size for run in runs) - min(run.size for run in runs) <= 1
+
+
+def test_a_point_seen_by_more_images_than_the_cap_gives_chained_ties(sequence, current):
+    """The three images with at most two per tie: every tie joins two images; the ties of one ground point
+    (grouped by their positions, 8 pixels apart between points) are consecutive runs of the images that see it,
+    sharing one image (a point seen by all three: images 0-1 and 1-2, never 0-2), so the images stay connected;
+    the default cap leaves these points one tie of three observations."""
+    models, covariances = current
+    images = [im.data for im in sequence.images]
+    static = static_surface(sequence.scene)
+    split = find_ties(images, models, static, covariances, TieOptions(max_images=2, spacing=8.0))
+    whole = find_ties(images, models, static, covariances, TieOptions(spacing=8.0))
+    assert np.all(np.bincount(split.tie) == 2)
+    per_tie = [frozenset(split.image[split.tie == t].tolist()) for t in range(split.n_ties)]
+    north = 6_371_000.0 * split.latitude
+    east = 6_371_000.0 * split.longitude * np.cos(split.latitude)
+    distance = np.hypot(north[:, None] - north[None, :], east[:, None] - east[None, :])
+    same = distance < 8_000.0  # the lattice is ~20 km (8 pixels of ~2.4 km), a tie's position within a pixel
+    chained = 0
+    for t in range(split.n_ties):
+        group = [per_tie[u] for u in np.nonzero(same[t])[0]]
+        assert len(group) <= 2, group
+        if len(group) == 2:
+            assert sorted(map(sorted, group)) == [[0, 1], [1, 2]], group
+            chained += 1
+    three = int(np.sum(np.bincount(whole.tie) == 3))
+    assert chained // 2 >= 0.8 * three >= 40, (chained, three)
+    counts = split.pair_counts()
+    assert counts[(0, 1)] >= 40 and counts[(1, 2)] >= 40, counts
+    assert counts.get((0, 2), 0) < 0.5 * min(counts[(0, 1)], counts[(1, 2)]), counts  # points image 1 misses
+    with pytest.raises(SeaiceError, match="max_images"):
+        TieOptions(max_images=1)
+

@@ -68,7 +68,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax._shapes import bucket
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import engine
 from seaice_jax.adjust.problem import Problem, ResidualBlock, linearize, weights
 from seaice_jax.adjust.quality import DEFAULT_ALPHA
@@ -381,7 +381,7 @@ def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, refer
         return np.zeros((size, size))
     reference_image, n_ties = np.asarray(reference_image), int(np.asarray(reference_image).size)
     rows = _tie_rows(problem, result, n_ties)
-    matched, image, _, pair = _matched_pairs(rows, reference_image)
+    matched, image, pairs, pair = _matched_pairs(rows, reference_image)
     if matched.size == 0:
         return np.zeros((size, size))
     weight, pixel, scan = rows[4:]
@@ -389,6 +389,12 @@ def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, refer
                          weight[matched], (offset_factor, gradient_factor, gradient_factor))  # (k, 2, 3)
     gain = cofactor @ _field_pull(rows, n_ties, size, matched, pair, field)
     return gain @ gain.T
+
+
+@eqx.filter_jit
+def _carried(source: ScanModel, target: ScanModel, pixel, scan):
+    """``(n, 2)`` pixel and scan in ``target`` of the ground that ``source`` sees at ``(n,)`` ``pixel``, ``scan``."""
+    return jnp.stack(target.inverse(*source.forward(pixel, scan)), -1)
 
 
 def phase_tie_covariance(problem: Problem, result: engine.Adjustment, observations: SequenceObservations, cofactor,
@@ -413,7 +419,7 @@ def phase_tie_covariance(problem: Problem, result: engine.Adjustment, observatio
     reference_image = np.asarray(observations.reference_image)
     n_ties = int(reference_image.size)
     rows = _tie_rows(problem, result, n_ties)
-    matched, image, _, pair = _matched_pairs(rows, reference_image)
+    matched, image, pairs, pair = _matched_pairs(rows, reference_image)
     if matched.size == 0:
         return np.zeros((size, size))
     tie, weight, pixel, scan = rows[3], rows[4], rows[5], rows[6]
@@ -421,17 +427,15 @@ def phase_tie_covariance(problem: Problem, result: engine.Adjustment, observatio
     reference_pixel, reference_scan = np.zeros(n_ties), np.zeros(n_ties)
     reference_pixel[tie[reference]], reference_scan[tie[reference]] = pixel[reference], scan[reference]
     adjusted = observations.models_at(jnp.asarray(result.parameters["theta"]).reshape(-1, UNKNOWNS_PER_IMAGE))
-    first, second = reference_image[tie[matched]], image[matched]
     where = []
     for models in (observations.models, adjusted):  # q through the reference image's model, then b's inverse
-        ground, carried = np.zeros((2, matched.size)), np.zeros((matched.size, 2))
-        for k in np.unique(first):
-            pick = first == k
-            ground[:, pick] = [np.asarray(v) for v in models[k].forward(reference_pixel[tie[matched[pick]]],
-                                                                         reference_scan[tie[matched[pick]]])]
-        for k in np.unique(second):
-            pick = second == k
-            carried[pick] = np.stack([np.asarray(v) for v in models[k].inverse(*ground[:, pick])], 1)
+        carried = np.zeros((matched.size, 2))
+        for number, (a, b) in enumerate(pairs):
+            pick = np.nonzero(pair == number)[0]
+            rows_padded = bucket(pick.size)  # pairs of similar overlap share one compiled transfer
+            at = [pad(v[tie[matched[pick]]], rows_padded, v[tie[matched[pick[0]]]]) for v in (reference_pixel,
+                                                                                           reference_scan)]
+            carried[pick] = np.asarray(_carried(models[a], models[b], *at))[:pick.size]
         where.append(carried)
     shift = where[0] - where[1]
     phase = 2 * np.pi * shift

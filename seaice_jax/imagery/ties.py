@@ -48,7 +48,15 @@ Method:
    none beyond 10), which no σ here describes; the adjustment estimates the ties' variance factor from their
    residuals (:mod:`seaice_jax.adjust.sequence_block`).
 
-A ground point seen in k images is one tie with k observations (all matched against one reference).
+6. **Runs**: a ground point seen in k images is one tie with k observations (all matched against one reference)
+   while k ≤ ``max_images``; seen in more (a season of one area: up to every image), it gives several ties, each
+   over a run of at most ``max_images`` of its images consecutive in sequence order (:func:`image_runs`), with its
+   own reference chosen and matched within the run, consecutive runs sharing one image so that the whole
+   sequence stays connected through the ties. The adjustment's work per tie grows with k² (the Schur complement's
+   blocks between a tie's observations), and matching a day-1 template into day 200 relies on a texture the
+   season has changed; bounded runs keep both per tie whatever the season's length, and the number of ties grows
+   with the images. The shared image holds two observations of the point, one per run (each matched against its
+   own run's reference, or the same pixel centre where it is the reference of both).
 """
 
 from collections.abc import Callable, Sequence
@@ -103,6 +111,10 @@ class TieOptions:
         pointing_sigma: pixels, the σ floor of each observation (module docstring).
         correlation_area: template pixels per independent sample in the match covariance, N_eff = patch² /
             correlation_area (module docstring).
+        max_images: most images (observations) per tie (module docstring, 6.): a ground point seen in more gives
+            ⌈(k − 1)/(max_images − 1)⌉ ties over consecutive runs of its images sharing one image each. 6 leaves
+            the 3-4 image sequences of the experiments one tie per point and bounds the adjustment's work per tie
+            (k² ≤ 36 pairs of observations, against 40 000 for a point seen by a season's 200 images).
     """
 
     patch: int = 15
@@ -117,6 +129,7 @@ class TieOptions:
     neighbours: int = 8
     pointing_sigma: float = 0.01
     correlation_area: float = 3.0
+    max_images: int = 6
 
     def __post_init__(self):
         if self.patch < 5 or self.patch % 2 == 0:
@@ -130,6 +143,8 @@ class TieOptions:
             raise SeaiceError(f"pointing_sigma must be > 0 pixels, got {self.pointing_sigma}")
         if not self.correlation_area >= 1:
             raise SeaiceError(f"correlation_area must be >= 1 pixel, got {self.correlation_area}")
+        if self.max_images < 2:
+            raise SeaiceError(f"max_images must be at least 2 (a tie joins two images), got {self.max_images}")
 
 
 @dataclass(frozen=True)
@@ -489,6 +504,40 @@ def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search
     return _Matches(candidate, p, s, sigma, sigma_reference, correlation, status)
 
 
+def image_runs(images, max_images: int) -> list[np.ndarray]:
+    """The runs of a ground point's images that become its ties (module docstring, 6.).
+
+    Args:
+        images: indices of the images that see the point (any order). max_images: most images per run (≥ 2).
+
+    Returns:
+        The images sorted in sequence order as one run when there are at most ``max_images``; else the fewest runs
+        of at most ``max_images`` consecutive ones, of near-equal length, each run's last image the next run's first.
+    """
+    images = np.sort(np.asarray(images, int))
+    if images.size <= max_images:
+        return [images]
+    count = -(-(images.size - 1) // (max_images - 1))
+    bounds = np.rint(np.linspace(0, images.size - 1, count + 1)).astype(int)
+    return [images[first:last + 1] for first, last in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def _runs(seen, max_images: int):
+    """``(point (n,), member (n_images, n))``: per run of :func:`image_runs` over the points' ``seen
+    (n_images, n_points)`` columns, its point's column and its images (one run per point seen by at most
+    ``max_images``: then ``point`` is ``arange`` and ``member`` is ``seen``)."""
+    if not (seen.sum(axis=0) > max_images).any():
+        return np.arange(seen.shape[1]), seen
+    point, columns = [], []
+    for j in range(seen.shape[1]):
+        for run in image_runs(np.nonzero(seen[:, j])[0], max_images):
+            column = np.zeros(seen.shape[0], bool)
+            column[run] = True
+            point.append(j)
+            columns.append(column)
+    return np.array(point), np.stack(columns, axis=1)
+
+
 def find_ties(images: Sequence, models: Sequence[ScanModel], static: Callable, covariances=None,
               options: TieOptions = TieOptions()) -> TiePoints:
     """Tie points between all overlapping images of a sequence, on the static surface.
@@ -520,14 +569,6 @@ def find_ties(images: Sequence, models: Sequence[ScanModel], static: Callable, c
     n_images = len(models)
     half = options.patch // 2
     sizes = [_pixel_size(m) for m in models]
-    near = _may_overlap(models, sizes)
-    searches = {}
-    for r in range(n_images):
-        for o in range(n_images):
-            if r != o and near[r, o] and (search := _pair_search(
-                    models[r], models[o], None if covariances is None else (covariances[r], covariances[o]), options,
-                    half + 2)):
-                searches[(r, o)] = search
     plane, x, y = _lattice(models, options.spacing * float(np.mean(sizes)))
     latitude, longitude = _chunked(_plane_inverse, (plane,), x, y)
     seen = np.zeros((n_images, x.size), bool)
@@ -538,30 +579,42 @@ def find_ties(images: Sequence, models: Sequence[ScanModel], static: Callable, c
         seen[i] = _inside(model, pixels[i], scans[i], half + 2)
     keep = seen.sum(axis=0) >= 2
     keep[keep] = _static_footprint(static, plane, x[keep], y[keep], (half + 1) * max(sizes))
-    candidates = np.nonzero(keep)[0]
-    contrast = np.full((n_images, candidates.size), -np.inf)
+    kept = np.nonzero(keep)[0]
+    contrast_kept = np.full((n_images, kept.size), -np.inf)
     for i in range(n_images):
-        visible = seen[i, candidates]
+        visible = seen[i, kept]
         if visible.any():
-            patches = _patches(images[i], pixels[i, candidates[visible]], scans[i, candidates[visible]], half)
-            contrast[i, visible] = np.nan_to_num(patches.std(axis=(1, 2)), nan=-1.0)
+            patches = _patches(images[i], pixels[i, kept[visible]], scans[i, kept[visible]], half)
+            contrast_kept[i, visible] = np.nan_to_num(patches.std(axis=(1, 2)), nan=-1.0)
+    point, member = _runs(seen[:, kept], options.max_images)  # the candidates: one per run of a point's images
+    pixels, scans = pixels[:, kept[point]], scans[:, kept[point]]
+    contrast = np.where(member, contrast_kept[:, point], -np.inf)
+    candidates = np.arange(point.size)
+    near = _may_overlap(models, sizes) & (member.astype(float) @ member.T.astype(float) > 0)  # in one run
+    searches = {}
+    for r in range(n_images):
+        for o in range(n_images):
+            if r != o and near[r, o] and (search := _pair_search(
+                    models[r], models[o], None if covariances is None else (covariances[r], covariances[o]), options,
+                    half + 2)):
+                searches[(r, o)] = search
     found: list[tuple[tuple[int, int], _Matches]] = []
     active = np.ones(candidates.size, bool)
     for _ in range(n_images - 1):  # a candidate whose reference matched nowhere tries the next best reference
         reference = np.where(active, np.argmax(contrast, axis=0), -1)
         tied = np.zeros(candidates.size, bool)
         for r in range(n_images):
+            referenced = np.nonzero(reference == r)[0]
             for o in range(n_images):
-                if (r, o) not in searches:
+                if (r, o) not in searches or referenced.size == 0:
                     continue
-                window_inside = _inside(models[o], pixels[o, candidates], scans[o, candidates],
+                window_inside = _inside(models[o], pixels[o, referenced], scans[o, referenced],
                                         half + searches[(r, o)] + 3)
-                chosen = np.nonzero((reference == r) & window_inside)[0]
+                chosen = referenced[window_inside & member[o, referenced]]
                 if chosen.size == 0:
                     continue
                 matches = _match_pair(images[r], images[o], models[r], models[o], candidates[chosen],
-                                      pixels[r, candidates[chosen]], scans[r, candidates[chosen]], searches[(r, o)],
-                                      options)
+                                      pixels[r, chosen], scans[r, chosen], searches[(r, o)], options)
                 found.append(((r, o), matches))
                 tied[chosen[matches.status == GOOD]] = True
         contrast[reference[active & ~tied], np.nonzero(active & ~tied)[0]] = -np.inf
