@@ -195,7 +195,10 @@ def main():
         print(lines[-1], flush=True)
     lines += ["", f"Machine: {os.cpu_count()} cores, load average {load:.1f} at the start and "
               f"{os.getloadavg()[0]:.1f} at the end (other work sharing the cores slows every column alike); "
-              f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']} (module docstring)."]
+              f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']} (module docstring).",
+              "Per tie and solve the time is about constant; per tie and call it grows with the number of solves: "
+              "at a fixed α the w-tests flag a number of good ties that grows with the observations, removed over "
+              "more rounds, each followed by the variance factor's re-estimation."]
     update_results("Simultaneous adjustment of image sequences (bench_sequence_block.py)", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
