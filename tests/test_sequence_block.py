@@ -198,6 +198,15 @@ def noisy_control(control: ControlPoints, rng, radius) -> ControlPoints:
     return ControlPoints(control.pixel, control.scan, latitude, longitude, control.sigma, control.ids)
 
 
+def _design_line(n_theta, n_ties, image, j_theta, tie, j_point):
+    """One whitened row of the dense design over θ (5 per image) and the tie points (2 each; ``tie`` None: none)."""
+    line = np.zeros(n_theta + 2 * n_ties)
+    line[5 * image:5 * image + 5] = j_theta
+    if tie is not None:
+        line[n_theta + 2 * tie:n_theta + 2 * tie + 2] = j_point
+    return line
+
+
 def _dense_tie_sandwich(result, correlation, factors):
     """The θ block of (AᵀA)⁻¹ Aᵀ C A (AᵀA)⁻¹ for the whitened dense design A of every unknown (θ and the tie
     points, nothing eliminated) at the solution, C = κ I + Σ_pairs U S (UᵀU)⁻¹ S Uᵀ on the tie rows (U: per pair
@@ -212,11 +221,9 @@ def _dense_tie_sandwich(result, correlation, factors):
         sigma, image = np.asarray(group.sigma), np.asarray(group.image)
         for row in range(group.rows):
             for axis in range(group.sigma.shape[1]):
-                line = np.zeros(n_theta + 2 * n_ties)
-                line[5 * image[row]:5 * image[row] + 5] = j_theta[row, axis]
-                if group.tie is not None:
-                    tie = int(group.tie[row])
-                    line[n_theta + 2 * tie:n_theta + 2 * tie + 2] = j_point[row, axis]
+                tie = None if group.tie is None else int(group.tie[row])
+                line = _design_line(n_theta, n_ties, int(image[row]), j_theta[row, axis], tie, j_point[row, axis])
+                if tie is not None:
                     first = int(observations.reference_image[tie])
                     if first != image[row] and np.isfinite(sigma[row, axis]):
                         fields.setdefault((first, int(image[row]), axis), []).append(
@@ -352,15 +359,12 @@ def _dense_phase_sandwich(result, start, phase_sigma):
                     for models in (start, result.models)]
                 shift = carried[0] - carried[1]
             for axis in range(group.sigma.shape[1]):
-                line = np.zeros(n_theta + 2 * n_ties)
-                line[5 * image[row]:5 * image[row] + 5] = j_theta[row, axis]
-                if group.tie is not None:
-                    tie = int(group.tie[row])
-                    line[n_theta + 2 * tie:n_theta + 2 * tie + 2] = j_point[row, axis]
-                    if shift is not None and np.isfinite(sigma[row, axis]):
-                        phase = 2 * np.pi * shift[axis]
-                        fields.setdefault((first, second, axis), []).append(
-                            (len(design), phase_sigma * np.array([np.cos(phase), np.sin(phase)]) / sigma[row, axis]))
+                tie = None if group.tie is None else int(group.tie[row])
+                line = _design_line(n_theta, n_ties, int(image[row]), j_theta[row, axis], tie, j_point[row, axis])
+                if shift is not None and np.isfinite(sigma[row, axis]):
+                    phase = 2 * np.pi * shift[axis]
+                    fields.setdefault((first, second, axis), []).append(
+                        (len(design), phase_sigma * np.array([np.cos(phase), np.sin(phase)]) / sigma[row, axis]))
                 design.append(line)
     design = np.array(design)
     basis = []
