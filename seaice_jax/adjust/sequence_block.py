@@ -394,7 +394,7 @@ def systematic_tie_covariance(problem: Problem, result: engine.Adjustment, refer
 @eqx.filter_jit
 def _carried(source: ScanModel, target: ScanModel, pixel, scan):
     """``(n, 2)`` pixel and scan in ``target`` of the ground that ``source`` sees at ``(n,)`` ``pixel``, ``scan``."""
-    return jnp.stack(target.inverse(*source.forward(pixel, scan)), -1)
+    return jnp.stack(source.carried_to(target, pixel, scan), -1)
 
 
 def phase_tie_covariance(problem: Problem, result: engine.Adjustment, observations: SequenceObservations, cofactor,

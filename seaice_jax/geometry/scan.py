@@ -269,6 +269,11 @@ class ScanModel(eqx.Module):
         )
         return pixel, scan
 
+    def carried_to(self, target: "ScanModel", pixel, scan):
+        """``(pixel, scan)`` in ``target``'s image of the ground this model sees at ``pixel``, ``scan`` (``(...)``):
+        ``target.inverse`` of :meth:`forward_unchecked` (NaN where the line of sight misses the Earth)."""
+        return target.inverse(*self.forward_unchecked(pixel, scan))
+
 
 _forward = jax.jit(ScanModel.forward_unchecked)
 

@@ -239,18 +239,13 @@ def _southbound(model: ScanModel) -> ScanModel:
                      model.n_scans)
 
 
-def _transfer_points(source: ScanModel, target: ScanModel, pixel, scan):
-    latitude, longitude = source.forward_unchecked(pixel, scan)
-    return target.inverse(latitude, longitude)
-
-
 @eqx.filter_jit
 def _transfer_kernel(source, target, pixel, scan):
     """T at ``(n,)`` points and its ``(n, 2, 2)`` Jacobian ∂(target pixel, scan)/∂(source pixel, scan)."""
 
     def one(p, s):
         def point(q):
-            return jnp.stack(_transfer_points(source, target, q[0], q[1]))
+            return jnp.stack(source.carried_to(target, q[0], q[1]))
 
         q = jnp.stack([p, s])
         return point(q), jax.jacfwd(point)(q)
@@ -305,8 +300,8 @@ def _transfer_sensitivity(source, target, pixel, scan):
     """``(2, n, 10)`` ∂T/∂(source unknowns, target unknowns) at ``(n,)`` source points."""
 
     def moved(values):
-        return jnp.stack(_transfer_points(with_scan_unknowns(source, values[:5]),
-                                          with_scan_unknowns(target, values[5:]), pixel, scan))
+        return jnp.stack(with_scan_unknowns(source, values[:5]).carried_to(with_scan_unknowns(target, values[5:]),
+                                                                            pixel, scan))
 
     return jax.jacfwd(moved)(jnp.concatenate([scan_unknowns(source), scan_unknowns(target)]))
 
