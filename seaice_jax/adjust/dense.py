@@ -28,12 +28,12 @@ JACOBI_LIMIT = 8
 scan model, a curve fit), beyond which LAPACK's QR and SVD."""
 JACOBI_SWEEPS = 30
 """Most sweeps of the Jacobi rotations (LAPACK's ``dgesvj`` cap; a sweep rotates every pair of columns once; the
-convergence is quadratic: 4-7 sweeps from an arbitrary matrix, one from the previous iteration's rotation)."""
+convergence is quadratic: a few sweeps from an arbitrary matrix, fewer from the previous iteration's rotation)."""
 STEP_ORTHOGONALITY = 1e-6
 """|cos| between two rotated columns at which the Jacobi rotations of an iteration's step stop (the statistics
 rotate to roundoff): the step is then exact to about this relative accuracy, which leaves Gauss-Newton's
-convergence and its fixed point (Jᵀe = 0) as they were, and from the previous iteration's rotation one sweep
-reaches it. The test is relative, so a dependent column is still rotated down to roundoff (the rank is kept)."""
+convergence and its fixed point (Jᵀe = 0) as they were, and from the previous iteration's rotation few sweeps
+reach it. The test is relative, so a dependent column is still rotated down to roundoff (the rank is kept)."""
 
 
 def columns(problem: Problem, block):

@@ -31,7 +31,7 @@ def damping_for_radius(singular, projected, kept, radius, iterations: int = SECU
     """λ ≥ 0 of the step of norm ``radius`` (0 when the Gauss-Newton step is shorter).
 
     Args:
-        singular: ``(N,)`` singular values of the column-scaled Jacobian J D⁻¹ (largest first).
+        singular: ``(N,)`` singular values of the column-scaled Jacobian J D⁻¹ (any order).
         projected: ``(N,)`` g = (QU)ᵀe, the whitened residuals in its left singular vectors.
         kept: ``(N,)`` the determined directions (dropped ones take no step).
         radius: r > 0, in the scaled unknowns DΔ.

@@ -81,6 +81,9 @@ def variance_components(problem: Problem, options=None, names=(), groups=None, s
         bad = [n for n in pool if n not in problem.blocks or n in split_components]
         if bad:
             raise SeaiceError(f"pooled: {', '.join(map(repr, bad))} not an unsplit block of the problem")
+    shared = sorted({n for pool in pooled for n in pool if sum(n in other for other in pooled) > 1})
+    if shared:
+        raise SeaiceError(f"pooled: {', '.join(map(repr, shared))} in more than one pool (one factor per block)")
     factors = {g: 1.0 for g in candidates}
     first = result = engine.solve(problem, options, names, **solve_options)
     chosen = [g for g in candidates if (groups is None and _sums(first, problem, g)[1] >= 1.0)

@@ -137,14 +137,21 @@ COAST_BANDS = (0.0, -2.0, -5.0, -10.0, -20.0)
 and 10-20 pixels offshore; farther sea is the baseline."""
 
 
+def signed_distance(land: np.ndarray) -> np.ndarray:
+    """``(rows, columns)`` pixels from each cell of the boolean raster ``land`` to the nearest cell of the other kind
+    (exact Euclidean distance transform) less half a cell, positive on land: the zero line runs midway between a
+    land and a sea cell."""
+    land = np.asarray(land, bool).astype(np.uint8)
+    inland = cv2.distanceTransform(land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    offshore = cv2.distanceTransform(1 - land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(land > 0, inland - 0.5, 0.5 - offshore)
+
+
 def coast_bands(prediction: np.ndarray, smoothing: float) -> np.ndarray:
     """``(k, rows, columns)`` float32: indicators of the profile bins (:data:`COAST_BANDS`) of the prediction's
     signed distance to its coast (pixels, exact Euclidean distance transform), each smoothed by a Gaussian of σ
     ``smoothing`` pixels."""
-    land = (prediction > 0.5).astype(np.uint8)
-    inland = cv2.distanceTransform(land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    offshore = cv2.distanceTransform(1 - land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    distance = np.where(land > 0, inland - 0.5, 0.5 - offshore)
+    distance = signed_distance(prediction > 0.5)
     edges = (np.inf, *COAST_BANDS)
     return np.stack([_smooth(((distance <= high) & (distance > low)).astype(np.float32), smoothing)
                      for high, low in zip(edges[:-1], edges[1:], strict=True)])

@@ -23,6 +23,7 @@ from pathlib import Path
 import equinox as eqx
 import numpy as np
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path
 from seaice_jax.geometry.crs import CrsProjection
@@ -39,9 +40,9 @@ def _call(function, *arrays):
 def bucketed(function, *arrays) -> tuple[np.ndarray, ...]:
     """``function(*arrays)`` (a JAX function of equal-shape arrays, elementwise, e.g. a projection's bound
     ``forward``/``inverse`` or a scan model's ``inverse``) as NumPy arrays, evaluated under ``jit`` with the
-    flattened arrays padded (with their first element, or zeros) to a power-of-two length: drawing calls such
-    functions with ever-changing lengths; eagerly, each call would compile every operation again (seconds), jitted,
-    each length once."""
+    flattened arrays padded (with their first element, or zeros) to a bucket length
+    (:func:`~seaice_jax._shapes.bucket`): drawing calls such functions with ever-changing lengths; eagerly, each
+    call would compile every operation again (seconds), jitted, each length once."""
     arrays = [np.asarray(a, float) for a in np.broadcast_arrays(*arrays)]
     owner = getattr(function, "__self__", None)
     if isinstance(owner, CrsProjection):  # PROJ on the host: nothing to compile, and no callback inside jit (it
@@ -49,8 +50,8 @@ def bucketed(function, *arrays) -> tuple[np.ndarray, ...]:
         return owner.host_transform(*arrays, inverse=function.__name__ == "inverse")
     shape = arrays[0].shape
     size = arrays[0].size
-    length = 1 << max(int(size - 1).bit_length(), 4)
-    padded = [np.concatenate([a.ravel(), np.full(length - size, a.flat[0] if size else 0.0)]) for a in arrays]
+    length = max(bucket(size), 16)
+    padded = [pad(a.ravel(), length, a.flat[0] if size else 0.0) for a in arrays]
     return tuple(np.asarray(value, float)[:size].reshape(shape) for value in _call(function, *padded))
 
 

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude, north_east, unit_vector
 from seaice_jax.geometry.projections import TangentPlane
 from seaice_jax.geometry.range_doppler import LookSide, imaging_time_and_range, look_sign
@@ -361,6 +362,8 @@ def aidjex_scenario(seed: int = 0, plan: FlightPlan | None = None, errors: Error
 
 PRUDHOE_COAST = (-152.0, 69.0, -146.0, 72.0)
 """The GSHHG box (west, south, east, north degrees) the Prudhoe scenario takes its land from."""
+_LAND_DRAWS = 50
+"""Rounds of random swath positions drawn for the Prudhoe strip's land points before giving up."""
 
 
 def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_points: int = 20,
@@ -384,12 +387,16 @@ def prudhoe_scenario(seed: int = 0, errors: ErrorModel | None = None, control_po
     side = float(look_sign(plan.look_side))
     land = coastline(*PRUDHOE_COAST)
     positions = np.zeros((0, 2))
-    while len(positions) < count:
+    for _ in range(_LAND_DRAWS):
         local = np.stack([rng.uniform(-0.9, 0.9, 4 * count) * half_along,
                           rng.uniform(-0.45, 0.45, 4 * count) * width], 1)
         candidates = np.stack([side * local[:, 1], local[:, 0]], 1)  # heading north: along = y, across = x
         lat, lon = (np.degrees(np.asarray(a)) for a in plane.inverse(candidates[:, 0], candidates[:, 1]))
         positions = np.concatenate([positions, candidates[land.contains(lat, lon)]])[:count]
+        if len(positions) == count:
+            break
+    else:
+        raise SeaiceError(f"the Prudhoe strip's swath holds too little GSHHG land for {count} land points")
     kinds = np.array(["land"] * count)
     coverages, truth = [], []
     for day in range(2):

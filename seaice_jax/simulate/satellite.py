@@ -3,7 +3,6 @@ sequences of AVHRR-like images of moving pack ice (:func:`simulate_sequence`) fo
 
 from dataclasses import dataclass
 
-import cv2
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -13,6 +12,7 @@ from jaxtyping import Array, Float
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.projections import MapGrid, Projection
 from seaice_jax.geometry.scan import Direction, ScanModel, satellite_orbit
+from seaice_jax.imagery.coast_control import signed_distance
 from seaice_jax.sensors.control import ControlPoints, ImageObservations
 
 
@@ -212,10 +212,7 @@ def coast_distance_raster(grid: MapGrid) -> np.ndarray:
     key = (grid.projection.proj_string(), float(grid.x_first), float(grid.y_first), float(grid.pixel_width),
            float(grid.pixel_height), grid.n_rows, grid.n_columns)
     if key not in _COAST_DISTANCE:
-        land = land_mask_of_grid(grid).astype(np.uint8)
-        inland = cv2.distanceTransform(land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        offshore = cv2.distanceTransform(1 - land, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        distance = np.where(land > 0, inland - 0.5, 0.5 - offshore) * float(grid.pixel_width)
+        distance = signed_distance(land_mask_of_grid(grid)) * float(grid.pixel_width)
         if len(_COAST_DISTANCE) >= 8:
             _COAST_DISTANCE.pop(next(iter(_COAST_DISTANCE)))
         _COAST_DISTANCE[key] = distance.astype(float)

@@ -32,7 +32,7 @@ import shutil
 import sys
 import time
 import zipfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import cast
@@ -44,7 +44,6 @@ from tqdm.auto import tqdm
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
-from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
@@ -58,11 +57,11 @@ from seaice_jax.workflows.image_sequence import (
     TrackedPair,
     TrackedSequence,
     follow_floes,
-    geolocation_sigma,
     land_of_grid,
     load_remapped,
     make_lattice,
-    rectify_images,
+    model_arrays,
+    remap_sequence,
     track_pair,
     track_report,
     write_pair,
@@ -141,14 +140,12 @@ def remap_image(project: SequenceProject, entry: dict, index: int, staging: str 
     staging = Path(staging)
     image = read_sequence_image(project, entry, index)
     alone = SequenceProject(project.path, project.epoch, project.grid, project.grid_spec, (image,))
-    (rectification,), covariance = rectify_images(alone)
-    values, valid = remap([image.data], [rectification.model], project.grid, method=method, fill=fill)
-    sigma = geolocation_sigma((rectification.model,), covariance, project.grid)
-    write_geotiff(staging / f"{image.name}.tif", values[0], project.grid,
+    stack, (rectification,) = remap_sequence(alone, method, fill)
+    write_geotiff(staging / f"{image.name}.tif", stack.values[0], project.grid,
                   f"{image.name} {time_after(project.epoch, image.time)}")
     with atomic_path(_part_path(staging, index)) as temporary, open(temporary, "wb") as stream:
-        np.savez(stream, values=values[0], valid=valid[0], sigma=sigma[0])
-    return RemappedImage(index, float(image.time), rectification, covariance, os.getpid(),
+        np.savez(stream, values=stack.values[0], valid=stack.valid[0], sigma=stack.sigma[0])
+    return RemappedImage(index, float(image.time), rectification, stack.covariance, os.getpid(),
                          time.perf_counter() - start, peak_memory())
 
 
@@ -213,16 +210,6 @@ def _write_npz(path: Path, small: dict, stacked: dict, parts: list[Path]) -> Pat
     return path
 
 
-def _model_arrays(models: Iterable[ScanModel]) -> dict:
-    """As the single-process ``remapped.npz`` stores the scan models."""
-    models = tuple(models)
-    return {"parameters": np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
-            "directions": np.array([m.direction for m in models]),
-            "shapes": np.array([[m.n_scans, m.n_pixels] for m in models]),
-            "orbits": np.array([[float(m.orbit.inclination), float(m.orbit.period), float(m.orbit.altitude),
-                                 float(m.orbit.earth_day), float(m.orbit.radius)] for m in models])}
-
-
 def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
     """``remapped.npz`` (streamed from the per-image parts), ``rectification.csv`` and ``remapped.png``, as
     :func:`~seaice_jax.workflows.image_sequence.write_remapped` writes them."""
@@ -235,7 +222,7 @@ def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
     parts = [_part_path(staging, image.index) for image in images]
     shape = project.grid.shape
     small = {"times": times, "names": np.array(names), "epoch": project.epoch, "grid": json.dumps(project.grid_spec),
-             "covariance": covariance, **_model_arrays(result.models)}
+             "covariance": covariance, **model_arrays(result.models)}
     files = [_write_npz(staging / "remapped.npz", small, {"values": (np.float64, shape), "valid": (np.bool_, shape),
                                                            "sigma": (np.float64, shape)}, parts)]
     files += write_rectification(staging / "rectification.csv", [image.rectification for image in images])

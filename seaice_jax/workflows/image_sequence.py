@@ -253,7 +253,7 @@ _STORED = ("values", "valid", "times", "names", "epoch", "grid", "sigma", "covar
            "directions", "shapes")
 
 
-def _model_arrays(models) -> dict:
+def model_arrays(models) -> dict:
     """The scan models as arrays (unknowns, directions, shapes, orbits) for an ``.npz``."""
     return {"parameters": np.array([[float(getattr(m, f)) for f in SCAN_UNKNOWNS] for m in models]),
             "directions": np.array([m.direction for m in models]),
@@ -275,7 +275,7 @@ def save_stack(path: str | os.PathLike, stack: RemappedStack) -> Path:
         np.savez_compressed(
             stream, values=stack.values, valid=stack.valid, times=stack.times, names=np.array(stack.names),
             epoch=stack.epoch, grid=json.dumps(stack.grid_spec), sigma=stack.sigma, covariance=stack.covariance,
-            **_model_arrays(stack.models))
+            **model_arrays(stack.models))
     return Path(path)
 
 
@@ -288,7 +288,7 @@ def save_models(path: str | os.PathLike, names, models, covariance, sigma0: floa
     method that found them, as an ``.npz`` (atomically) that ``seaice remap --models`` adopts."""
     with atomic_path(path) as temporary, open(temporary, "wb") as stream:
         np.savez_compressed(stream, names=np.array(names), covariance=np.asarray(covariance, float),
-                            sigma0=float(sigma0), method=method, **_model_arrays(models))
+                            sigma0=float(sigma0), method=method, **model_arrays(models))
     return Path(path)
 
 
