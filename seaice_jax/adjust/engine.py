@@ -52,8 +52,9 @@ ROUNDOFF = 1e-16
 EVALUATION_NOISE = 1e-9
 """Relative decrease of the square sum within which its evaluation's rounding can hide it: a residual computed as
 computed − observed loses ε·|observed|/σ (a longitude of 1.5 rad with σ = 1e-4 rad: 1e-12 of the square sum). A
-step whose Gauss-Newton decrease is below this is taken even if the evaluated square sum rises (by its noise), so
-that noise does not start the damping (which then creeps for many steps to a minimum already reached)."""
+step whose Gauss-Newton decrease is below this is taken even if the evaluated square sum rises, by at most this
+fraction (its noise), so that noise does not start the damping (which then creeps for many steps to a minimum
+already reached)."""
 RUNAWAY = 1e12
 """An unknown whose a priori σ exceeds this many times its value is undetermined (no digit of it is known)."""
 INSEPARABLE = 0.98
@@ -300,7 +301,9 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
             problem, layout, options, linear, points.shape, damping, scale, rotation)
         trial_linear = linearize_all(problem, theta + step_theta, points + step_points)
         trial = _square_sum(trial_linear)
-        within_noise = gauss_newton <= EVALUATION_NOISE * cost
+        # a last step whose predicted decrease is within the rounding of the square sum: taken if the square sum
+        # rises by no more than that rounding either
+        within_noise = (gauss_newton <= EVALUATION_NOISE * cost) & (trial <= (1.0 + EVALUATION_NOISE) * cost)
         accept = jnp.isfinite(trial) & ((trial < cost) | within_noise | (not options.monotone))
         tiny = _small(options, step_theta, theta) & _small(options, step_points, points)
         converged = jnp.isfinite(cost) & (tiny | _flat(options, cost, gauss_newton, dof))
