@@ -11,6 +11,7 @@ import shapely
 from scipy.spatial import KDTree
 
 from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.crs import CrsProjection
 from seaice_jax.geometry.projections import MapGrid, TangentPlane, nsidc_polar_stereographic
 from seaice_jax.io.coastline import bounds_of_grid, bucketed, coastline, coastline_of_grid, land_mask_of_grid
 
@@ -130,6 +131,16 @@ def test_bucketed_equals_the_direct_evaluation():
             direct = projection.forward(latitude, longitude)
             np.testing.assert_allclose(x, np.asarray(direct[0]), rtol=0, atol=1e-6)
             np.testing.assert_allclose(y, np.asarray(direct[1]), rtol=0, atol=1e-6)
+    # a PROJ-defined grid (evaluated by PROJ on the host) both ways, against the package's own EPSG:3413
+    proj = CrsProjection("EPSG:3413")
+    latitude, longitude = np.radians(rng.uniform(60, 89, 50)), np.radians(rng.uniform(-180, 180, 50))
+    x, y = bucketed(proj.forward, latitude, longitude)
+    native = projection.forward(latitude, longitude)
+    np.testing.assert_allclose(x, np.asarray(native[0]), rtol=0, atol=1e-3)
+    np.testing.assert_allclose(y, np.asarray(native[1]), rtol=0, atol=1e-3)
+    back = bucketed(proj.inverse, x, y)
+    np.testing.assert_allclose(back[0], latitude, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.cos(back[1] - longitude), 1.0, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("box, message", [((-95.0, 77.0, -70.0, 71.0), "south \\(77.0\\) must be below north"),
