@@ -13,6 +13,7 @@ from seaice_jax.adjust import dense
 from seaice_jax.adjust.engine import EngineOptions, solve
 from seaice_jax.adjust.lsq import make_solver
 from seaice_jax.adjust.orbit_fit import (
+    DECREASE_TOLERANCE,
     _observations,
     _positions,
     control_args,
@@ -159,7 +160,7 @@ def test_a_vmapped_batch_of_fits_matches_single_fits_and_the_lapack_autodiff_pat
     assert bool(jnp.all(batch.converged))
     reference_solver = make_solver(_autodiff_predict, guess, _observations(control, truth.orbit.radius),
                                    free=free_mask(guess))
-    lapack = EngineOptions("dense", 100, 1e-10, 1e-10, 1e-10, factorization="lapack")
+    lapack = EngineOptions("dense", 100, 1e-10, 1e-10, DECREASE_TOLERANCE, factorization="lapack")  # the fit's
     reference = jax.jit(jax.vmap(lambda a, b: solve(
         reference_solver.problem({"latitude": a, "longitude": b}, args), lapack, dof=solver.degrees_of_freedom)))(
         lats, lons)

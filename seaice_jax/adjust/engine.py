@@ -325,12 +325,23 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
     linear = linearize_all(problem, problem.start, problem.points)
-    rotation = jnp.eye(problem.unknowns if options.backend == "dense" else 0)
+    rotation = _start_rotation(problem, options, linear)
     start = (problem.start, problem.points, linear, _square_sum(linear), jnp.full((), options.initial_damping),
              jnp.full((), 2.0), jnp.zeros(problem.unknowns), rotation, jnp.zeros((), int), jnp.zeros((), bool),
              jnp.zeros((), bool))
     theta, points, linear, _, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
     return theta, points, linear, rotation, steps, converged
+
+
+def _start_rotation(problem: Problem, options: EngineOptions, linear):
+    """Where the first iteration's Jacobi rotations start: the right singular vectors of the start's column-scaled
+    Jacobian, factored before the loop (under ``vmap``, lanes that share the start and the model, such as a Monte
+    Carlo of the observations, share this factorization: it is computed once for all of them, and the first
+    iteration's rotations find it done); the identity where the factorization takes no rotations."""
+    if options.backend != "dense" or not dense.uses_jacobi(options.factorization, problem.unknowns):
+        return jnp.eye(problem.unknowns if options.backend == "dense" else 0)
+    _, jacobian = dense.assemble(problem, linear)
+    return dense.Factors(jacobian, factorization=options.factorization, orthogonality=dense.STEP_ORTHOGONALITY).vt.T
 
 
 def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
@@ -375,8 +386,8 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
 
     linear = linearize_all(problem, problem.start, problem.points)
     start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear, _square_sum(linear), jnp.ones(()),
-             jnp.zeros(problem.unknowns), jnp.eye(problem.unknowns), jnp.zeros((), int), jnp.zeros((), bool),
-             jnp.zeros((), bool))
+             jnp.zeros(problem.unknowns), _start_rotation(problem, options, linear), jnp.zeros((), int),
+             jnp.zeros((), bool), jnp.zeros((), bool))
     x, linear, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
     return *unpacked(x), linear, rotation, steps, converged
 

@@ -216,6 +216,7 @@ def make_solver(
     prior_value: PyTree | None = None,
     max_steps: int = 100,
     tolerance: float = 1e-10,
+    decrease_tolerance: float | None = None,
     factorization: str = "lapack",
     args=None,
 ):
@@ -234,6 +235,8 @@ def make_solver(
             none); priors are pseudo-observations of the free unknowns.
         prior_value: the prior values (default: ``parameters``).
         max_steps: iterations of the damped Gauss-Newton loop. tolerance: relative and absolute, on the step.
+        decrease_tolerance: or converged when the Gauss-Newton step is below this many a posteriori standard
+            deviations (:class:`~seaice_jax.adjust.engine.EngineOptions`; default ``tolerance``).
         factorization: the dense backend's (:class:`~seaice_jax.adjust.engine.EngineOptions`): ``"jacobi"`` for a
             solver to be vmapped over many problems of a few unknowns.
         args: model arguments for diagnosing a problem with fewer observations than unknowns (the
@@ -265,7 +268,8 @@ def make_solver(
     fixed_def = jax.tree_util.tree_structure(fixed_part)
     structure = (free_def, tuple((tuple(np.shape(a)), jnp.asarray(a).dtype) for a in free_leaves))
     functions = _block_functions(model, structure, fixed_def, groups)
-    options = EngineOptions("dense", max_steps, tolerance, tolerance, tolerance, factorization=factorization)
+    decrease = tolerance if decrease_tolerance is None else decrease_tolerance
+    options = EngineOptions("dense", max_steps, tolerance, tolerance, decrease, factorization=factorization)
     solver = Solver(functions, (free, fixed_part), groups, sigmas, (prior_index, prior_sigma_vector, prior_vector),
                     names, dof, x0, options)
     if dof < 0:

@@ -35,6 +35,13 @@ from seaice_jax.sensors.control import ControlPoints
 FREE_PARAMETERS = SCAN_UNKNOWNS
 """The five per-image unknowns, in the order the engine reports them."""
 
+DECREASE_TOLERANCE = 1e-6
+"""A fit has converged when the Gauss-Newton step left is below this many standard deviations of the estimates.
+Gauss-Newton gains about three decades an iteration on these fits (NOAA passes, 7 control points of σ 1 km: 3e-2,
+3e-5, 1e-7, 6e-10 σ from the minimum after 1-4 steps), so the estimates are then within ~1e-9 σ of the minimum; at
+the engine's default 1e-10 a few per cent of the fits took a fifth iteration, which under ``vmap`` every fit of the
+batch pays (benchmarks/bench_orbit_fit.py)."""
+
 FLAG_ARCMIN = 3.0
 """Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
 
@@ -138,16 +145,18 @@ def _observations(control: ControlPoints, radius):
     }
 
 
-def orbit_solver(control: ControlPoints, start: ScanModel, factorization: str = "jacobi") -> Solver:
+def orbit_solver(control: ControlPoints, start: ScanModel, factorization: str = "jacobi",
+                 decrease_tolerance: float = DECREASE_TOLERANCE) -> Solver:
     """A pure, jit/vmap-able :class:`~seaice_jax.adjust.lsq.Solver` for this image's control-point layout.
 
     Call it as ``solver({"latitude": lat, "longitude": lon}, args=control_args(control))``; the σ and image
     positions are fixed, the known positions vary (Monte Carlo). ``factorization``: the engine's
     (:class:`~seaice_jax.adjust.engine.EngineOptions`); Jacobi (the default) for a batch under ``vmap``, where it
-    vectorizes across the images; ``"lapack"`` is faster for one image at a time.
+    vectorizes across the images; ``"lapack"`` is faster for one image at a time. ``decrease_tolerance``: where
+    the iterations stop, in standard deviations of the estimates (:data:`DECREASE_TOLERANCE`).
     """
     return make_solver(_predict, start, _observations(control, start.orbit.radius), free=free_mask(start),
-                       factorization=factorization)
+                       decrease_tolerance=decrease_tolerance, factorization=factorization)
 
 
 def control_args(control: ControlPoints):
@@ -357,7 +366,7 @@ def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_option
     # both directions as one southbound problem (the sign of η's rate in the span): one compiled solve for both
     southbound = start.reversed() if direction == "north" else start
     adjustment = least_squares(_predict, southbound, _observations(control, orbit.radius), args=control_args(control),
-                               free=free_mask(southbound))
+                               free=free_mask(southbound), decrease_tolerance=DECREASE_TOLERANCE)
     if not bool(adjustment.converged):
         raise ComputationError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} "
                                "steps")
