@@ -8,8 +8,16 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
-from seaice_jax.io.sequence import MEMORY_BUDGET, read_sequence
-from seaice_jax.workflows.image_sequence import run_movie, run_remap, run_track, write_simulated_sequence
+from seaice_jax.io.sequence import MEMORY_BUDGET, make_grid, read_sequence
+from seaice_jax.simulate.satellite import noaa_pass
+from seaice_jax.workflows.image_sequence import (
+    SIMULATED_GRID,
+    RemappedStack,
+    load_remapped,
+    run_movie,
+    run_track,
+    save_stack,
+)
 
 HEAD = ('epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = [74.0, -85.0]\npixel_m = [2500.0, 2500.0]\n'
         'shape = [10, 10]\n')
@@ -66,10 +74,19 @@ def test_budget_figure_is_the_stack_size():
 
 @pytest.fixture(scope="module")
 def remapped(tmp_path_factory):
-    root = tmp_path_factory.mktemp("sequence")
-    project = write_simulated_sequence(root / "project", images=2, size=48)
-    run_remap(project, root / "remapped", progress=False)
-    return root / "remapped"
+    """A folder with the ``remapped.npz`` of two NOAA passes on the simulated projects' 150 x 150 grid, written by
+    the remap's own writer (:func:`save_stack`; the errors below are about the file and the film's size, not
+    about its pixels, so no rectification and remap is run for it)."""
+    folder = tmp_path_factory.mktemp("sequence") / "remapped"
+    folder.mkdir()
+    grid = make_grid(**SIMULATED_GRID)
+    models = tuple(noaa_pass(direction, 48, np.radians(74.0), np.radians(-85.0)) for direction in ("south", "north"))
+    values = np.random.default_rng(1).uniform(0.0, 1.0, (2, *grid.shape))
+    save_stack(folder / "remapped.npz", RemappedStack(
+        values, np.ones(values.shape, bool), np.array([3600.0, 90000.0]), ("A", "B"), "1983-03-08T00:00:00Z", grid,
+        SIMULATED_GRID, models, np.zeros((10, 10)), np.full(values.shape, 2500.0)))
+    assert load_remapped(folder).values.shape == (2, 150, 150)
+    return folder
 
 
 def test_truncated_remapped_stack_is_named(remapped, tmp_path, capsys):

@@ -334,7 +334,7 @@ def _dense_phase_sandwich(result, start, phase_sigma):
     tie points, nothing eliminated) at the solution, V per pair (reference image a, matched image b) and axis of b
     the whitened ``phase_sigma`` (cos 2πd, sin 2πd) on b's observations of the ties matched against a, d the shift
     of the tie's reference observation carried from a to b through the ``start`` models less through the adjusted
-    ones (one point at a time through the models' forward and inverse)."""
+    ones (through the models' forward and inverse, elementwise: one call per pair of images)."""
     observations = result.observations
     n_theta, n_ties = result.covariance.shape[0], observations.n_ties
     points = result.adjustment.parameters["points"][:n_ties]
@@ -345,19 +345,27 @@ def _dense_phase_sandwich(result, start, phase_sigma):
                 tie, image = int(group.tie[row]), int(group.image[row])
                 if image == int(observations.reference_image[tie]):
                     reference[tie] = (float(group.data["pixel"][row]), float(group.data["scan"][row]))
+    wanted = {}  # (first, second): [(group, row, tie)] of the observations in second of ties referenced in first
+    for name, group in observations.groups.items():
+        if group.tie is not None:
+            for row in range(group.rows):
+                tie = int(group.tie[row])
+                first, second = int(observations.reference_image[tie]), int(group.image[row])
+                if first != second:
+                    wanted.setdefault((first, second), []).append((name, row, tie))
+    shifts = {}
+    for (first, second), rows in wanted.items():
+        pixel, scan = (np.array([reference[tie][axis] for _, _, tie in rows]) for axis in (0, 1))
+        carried = [np.stack([np.asarray(v) for v in models[second].inverse(*models[first].forward(pixel, scan))],
+                            axis=1) for models in (start, result.models)]
+        shifts.update({(name, row): (first, second, d) for (name, row, _), d in zip(rows, carried[0] - carried[1],
+                                                                                   strict=True)})
     design, fields = [], {}
-    for group in observations.groups.values():
+    for name, group in observations.groups.items():
         _, j_theta, j_point = (np.asarray(a) for a in group_jacobians(group, result.theta, points))
         sigma, image = np.asarray(group.sigma), np.asarray(group.image)
         for row in range(group.rows):
-            shift = None
-            if group.tie is not None and int(image[row]) != int(observations.reference_image[int(group.tie[row])]):
-                tie = int(group.tie[row])
-                first, second = int(observations.reference_image[tie]), int(image[row])
-                carried = [np.array([float(v[0]) for v in models[second].inverse(
-                    *models[first].forward(np.array([reference[tie][0]]), np.array([reference[tie][1]])))])
-                    for models in (start, result.models)]
-                shift = carried[0] - carried[1]
+            first, second, shift = shifts.get((name, row), (None, None, None))
             for axis in range(group.sigma.shape[1]):
                 tie = None if group.tie is None else int(group.tie[row])
                 line = _design_line(n_theta, n_ties, int(image[row]), j_theta[row, axis], tie, j_point[row, axis])

@@ -52,15 +52,23 @@ def true_errors(ties, sequence):
     """Per matched observation: its (pixel, scan) minus the true correspondent of its tie's reference
     observation (true models), and the σ of the difference."""
     truth = [im.model for im in sequence.images]
-    reference = {int(t): k for k, t in enumerate(ties.tie) if ties.reference[k]}
-    errors, sigmas = [], []
-    for k in np.nonzero(~ties.reference)[0]:
-        r = reference[int(ties.tie[k])]
-        p, s = transfer(truth[ties.image[r]], truth[ties.image[k]], ties.pixel[r], ties.scan[r])
-        errors.append((ties.pixel[k] - float(p), ties.scan[k] - float(s)))
-        sigmas.append((np.hypot(ties.sigma_pixel[k], ties.sigma_pixel[r]),
-                       np.hypot(ties.sigma_scan[k], ties.sigma_scan[r])))
-    return np.array(errors), np.array(sigmas)
+    matched = np.nonzero(~ties.reference)[0]
+    reference = reference_rows(ties, matched)
+    errors = np.zeros((matched.size, 2))
+    for a, b in {(int(ties.image[r]), int(ties.image[k])) for k, r in zip(matched, reference, strict=True)}:
+        on = (ties.image[reference] == a) & (ties.image[matched] == b)  # one call per pair of images
+        p, s = transfer(truth[a], truth[b], ties.pixel[reference[on]], ties.scan[reference[on]])
+        errors[on] = np.stack([ties.pixel[matched[on]] - p, ties.scan[matched[on]] - s], axis=1)
+    sigmas = np.stack([np.hypot(ties.sigma_pixel[matched], ties.sigma_pixel[reference]),
+                       np.hypot(ties.sigma_scan[matched], ties.sigma_scan[reference])], axis=1)
+    return errors, sigmas
+
+
+def reference_rows(ties, rows):
+    """The row of the reference observation of each row's tie."""
+    reference = np.full(ties.n_ties, -1)
+    reference[ties.tie[ties.reference]] = np.nonzero(ties.reference)[0]
+    return reference[ties.tie[rows]]
 
 
 def test_hundreds_of_ties_on_every_overlapping_pair(ties):
@@ -97,13 +105,14 @@ def test_the_models_errors_are_what_the_matching_absorbs(ties, sequence, current
     models, _ = current
     truth = [im.model for im in sequence.images]
     k = np.nonzero(~ties.reference)[0][:50]
-    r = np.array([np.nonzero(ties.reference & (ties.tie == ties.tie[j]))[0][0] for j in k])
+    r = reference_rows(ties, k)
     shifts = []
-    for j, i in zip(k, r, strict=True):
-        predicted = transfer(models[ties.image[i]], models[ties.image[j]], ties.pixel[i], ties.scan[i])
-        true = transfer(truth[ties.image[i]], truth[ties.image[j]], ties.pixel[i], ties.scan[i])
-        shifts.append(np.hypot(float(predicted[0] - true[0]), float(predicted[1] - true[1])))
-    assert np.sqrt(np.mean(np.square(shifts))) > 0.5
+    for a, b in {(int(ties.image[i]), int(ties.image[j])) for j, i in zip(k, r, strict=True)}:
+        on = (ties.image[r] == a) & (ties.image[k] == b)  # one call per pair of images
+        predicted = transfer(models[a], models[b], ties.pixel[r[on]], ties.scan[r[on]])
+        true = transfer(truth[a], truth[b], ties.pixel[r[on]], ties.scan[r[on]])
+        shifts.append(np.hypot(predicted[0] - true[0], predicted[1] - true[1]))
+    assert np.sqrt(np.mean(np.square(np.concatenate(shifts)))) > 0.5
 
 
 def test_an_unrelated_image_gives_no_ties(sequence, current):
@@ -121,11 +130,11 @@ def test_an_unrelated_image_gives_no_ties(sequence, current):
     assert tried[LOW_CORRELATION] + tried[AT_EDGE] >= 0.9 * (tried.sum() - tried[NO_DATA]), tried
 
 
-def test_search_window_follows_the_models_uncertainty(sequence, current):
+def test_search_window_follows_the_models_uncertainty(ties, sequence, current):
     models, covariances = current
     static = static_surface(sequence.scene)
     images = [im.data for im in sequence.images]
-    narrow = find_ties(images, models, static, covariances)
+    narrow = ties  # matched through the same models and covariances
     wide = find_ties(images, models, static, [4 * c for c in covariances])  # σ × 2
     for pair, search in narrow.search.items():
         assert 2 * (search - 1) - 1 <= wide.search[pair] - 1 <= 2 * (search - 1) + 1

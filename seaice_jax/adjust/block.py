@@ -250,8 +250,20 @@ _IMAGE_FIELDS = ("basis", "rates", "position", "velocity", "north", "east", "nor
                  "sweep_delay", "range_scale", "sign", "time_per_mm")
 
 
+_FEW_ROWS = 8
+"""Rows of the control block at least. The control and prior blocks are always there, padded (rows with σ = inf):
+the control points to ``max(bucket(n), _FEW_ROWS)``, the priors to the bucket of the number of global unknowns (at
+most one prior each), so blocks with 0 to 8 control points, and options switching priors on and off, share one
+compiled solve and datum check; these few rows of padding cost little even in the dense backend."""
+
+
+def _few(n: int) -> int:
+    return max(bucket(n), _FEW_ROWS)
+
+
 def block_problem(layout: BlockLayout, options: BlockOptions, plane, radius: float, padded: bool) -> Problem:
-    """The engine's problem of a block (sizes padded to buckets when ``padded``: rows with σ = inf)."""
+    """The engine's problem of a block (image and nadir sizes padded to buckets when ``padded``, the control and
+    prior blocks always, see :data:`_FEW_ROWS`: rows with σ = inf)."""
     obs, nadir, control = layout.observations, layout.nadir, layout.control
     m, n_points = obs["point"].size, len(layout.point_key)
     size = (lambda n: bucket(n)) if padded else (lambda n: n)
@@ -269,16 +281,16 @@ def block_problem(layout: BlockLayout, options: BlockOptions, plane, radius: flo
             _nadir_residual, {k: jnp.asarray(pad(nadir[k], count, nadir[k][0])) for k in
                               ("y", "sweep_delay", "range_scale", "altitude")},
             jnp.asarray(pad(nadir_sigma[:, None], count, np.inf)), jnp.asarray(pad(nadir["index"], count, 0)))
-    if control["point"].size:
-        count = size(control["point"].size)
-        blocks["control"] = ResidualBlock(
-            _control_residual, {"xy": jnp.asarray(pad(control["xy"], count, 0.0))},
-            jnp.asarray(pad(np.repeat(control["sigma"][:, None], 2, axis=1), count, np.inf)),
-            jnp.zeros((count, 0), int), jnp.asarray(pad(control["point"], count, points - 1)))
+    count = _few(control["point"].size)
+    blocks["control"] = ResidualBlock(
+        _control_residual, {"xy": jnp.asarray(pad(control["xy"], count, 0.0))},
+        jnp.asarray(pad(np.repeat(control["sigma"][:, None], 2, axis=1), count, np.inf)),
+        jnp.zeros((count, 0), int), jnp.asarray(pad(control["point"], count, points - 1)))
     priors = np.nonzero(np.isfinite(layout.prior_sigma))[0]
-    if priors.size:
-        blocks["prior"] = ResidualBlock(_prior_residual, {"value": jnp.zeros(priors.size)},
-                                        jnp.asarray(layout.prior_sigma[priors][:, None]), jnp.asarray(priors[:, None]))
+    count = _few(len(layout.names))
+    blocks["prior"] = ResidualBlock(_prior_residual, {"value": jnp.zeros(count)},
+                                    jnp.asarray(pad(layout.prior_sigma[priors][:, None], count, np.inf)),
+                                    jnp.asarray(pad(priors[:, None], count, 0)))
     start = pad(layout.start_points, points, 0.0)
     return Problem(blocks, jnp.asarray(layout.start_theta), jnp.asarray(start))
 
@@ -315,24 +327,27 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
     n_real = len(layout.point_key)
     total = len(layout.names) + 2 * n_real
     solver = options.solver if options.solver != "auto" else ("dense" if total <= DENSE_LIMIT else "schur")
-    problem = block_problem(layout, options, plane, radius, padded=solver == "schur")
+    # the datum check on the padded problem whatever the solver: one compile per bucket of sizes
+    padded = block_problem(layout, options, plane, radius, padded=True)
+    problem = padded if solver == "schur" else block_problem(layout, options, plane, radius, padded=False)
     drift_points = _drift_points(layout, coverages, n_points, options.static_points)
     cross = np.concatenate([d[:, 1:] for d in drift_points]) if drift_points else np.zeros((0, 2), int)
-    tables = schur_layout(problem, cross)
+    tables = schur_layout(padded, cross)
     coverage = np.array([key[0] for key in layout.point_key])
-    check_datum(problem, tables, layout.names, coverage, layout.start_points)
+    check_datum(padded, tables, layout.names, coverage, layout.start_points)
     # the image whitening follows the estimate: square sums before and after a step differ in weights, so every
     # Gauss-Newton step is taken (as the block adjustment always did)
     settings = engine.EngineOptions(solver, options.max_iterations, 0.0, options.tolerance, options.tolerance,
                                     monotone=False)
     solve_options = {"cross_points": cross, "layout": tables if solver == "schur" else None}
     names = tuple(layout.names)
+    # the control block is there (all padding) when there is no control point: no factor for it then
+    groups = ("image", "nadir", "control") if layout.control["point"].size else ("image", "nadir")
     if options.variance_components:
-        result = variance_components(problem, settings, names, groups=("image", "nadir", "control"),
-                                     split_components=("image", "control"), **solve_options)
+        result = variance_components(problem, settings, names, groups=groups, split_components=("image", "control"),
+                                     **solve_options)
     elif options.robust is not None:
-        result = robust_adjustment(problem, options.robust, settings, names, groups=("image", "nadir", "control"),
-                                   **solve_options)
+        result = robust_adjustment(problem, options.robust, settings, names, groups=groups, **solve_options)
     else:
         result = engine.solve(problem, settings, names, **solve_options)
     if solver == "schur" and not np.all(np.isfinite(np.asarray(result.cofactor))):
