@@ -186,11 +186,18 @@ def noisy_batch():
     return solver, control_args(control), jnp.asarray(lats), jnp.asarray(lons)
 
 
+@jax.jit
+def _batch(solver, args, lats, lons):
+    """The solver vmapped over realizations of the known positions (one compilation per solver structure: the tests
+    of this module with 7 control points and 40 realizations share it)."""
+    return jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args))(lats, lons)
+
+
 def test_vmapped_fits_equal_the_single_fits(noisy_batch):
     """A lane of the vmapped solver is the single solver on the same data: the estimates equal to 1e-6 of their σ
     and the covariances to 1e-9 (the converged lanes keep their state while the others iterate)."""
     solver, args, lats, lons = noisy_batch
-    batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args)))(lats, lons)
+    batch = _batch(solver, args, lats, lons)
     single = jax.jit(lambda a, b: solver({"latitude": a, "longitude": b}, args))
     for k in range(0, lats.shape[0], 4):
         one = single(lats[k], lons[k])
@@ -206,7 +213,7 @@ def test_rounding_of_the_square_sum_does_not_start_the_damping(noisy_batch):
     Gauss-Newton step within it is taken, not refused and damped for ten more steps. Every fit ends at a
     stationary point (the gradient Jᵀe at rounding level) within a few steps."""
     solver, args, lats, lons = noisy_batch
-    batch = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args)))(lats, lons)
+    batch = _batch(solver, args, lats, lons)
     assert bool(jnp.all(batch.converged))
     assert int(jnp.max(batch.steps)) <= 6
     for k in range(0, lats.shape[0], 8):
@@ -228,12 +235,8 @@ def test_the_fits_stop_within_a_billionth_of_sigma_of_the_minimum():
     control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
     start = initial_guess(control, truth.orbit, "south")
     lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, 40))
-    results = []
-    for tolerance in (DECREASE_TOLERANCE, 1e-12):
-        solver = orbit_solver(control, start, decrease_tolerance=tolerance)
-        results.append(jax.jit(jax.vmap(lambda a, b, s=solver: s({"latitude": a, "longitude": b},
-                                                                    control_args(control))))(lats, lons))
-    stopped, strict = results
+    stopped, strict = (_batch(orbit_solver(control, start, decrease_tolerance=tolerance), control_args(control),
+                              lats, lons) for tolerance in (DECREASE_TOLERANCE, 1e-12))
     assert bool(jnp.all(stopped.converged)) and bool(jnp.all(strict.converged))
     assert int(jnp.max(stopped.steps)) <= int(jnp.max(strict.steps))
     sigma = np.sqrt(np.diagonal(np.asarray(strict.covariance), axis1=1, axis2=2))
