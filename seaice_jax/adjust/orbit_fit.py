@@ -13,7 +13,6 @@ Two methods:
 as the 1985 operators did by hand ("order of magnitude differences in the control point errors").
 """
 
-import functools
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -21,7 +20,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.custom_derivatives import SymbolicZero
 
 from seaice_jax.adjust.appendix_c import appendix_c_search
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
@@ -62,77 +60,10 @@ def free_mask(model: ScanModel):
                        replace=(True,) * len(FREE_PARAMETERS))
 
 
-def _angle_partials(model: ScanModel, pixel, scan):
-    """∂(latitude, longitude)/∂ψ and ∂(latitude, longitude)/∂η of image points, each ``(...)``, in closed form.
-
-    With the ground point's unit vector g = cos β u(η) − sin β n (:meth:`ScanModel.forward_unchecked`, source 001
-    eqs 3.3-8 to 3.3-10), latitude = asin g_z and longitude = Ω + atan2(g_y, g_x) − (T_s/T_e) η, so
-    ∂latitude = ∂g_z / h and ∂longitude = (g_x ∂g_y − g_y ∂g_x) / h² (h² = g_x² + g_y²), with
-    ∂g/∂β = −sin β u(η) − cos β n and ∂g/∂η = cos β u'(η); β's rate dβ/dψ by autodiff of
-    :meth:`Orbit.central_angle` (one tangent, elementwise).
-    """
-    orbit = model.orbit
-    psi = model.scanner_angle(pixel)
-    beta, beta_rate = jax.jvp(orbit.central_angle, (psi,), (jnp.ones_like(psi),))
-    eta = model.orbital_angle(scan)
-    cb, sb, ce, se = jnp.cos(beta), jnp.sin(beta), jnp.cos(eta), jnp.sin(eta)
-    ci, si = jnp.cos(orbit.inclination), jnp.sin(orbit.inclination)
-    gx, gy = cb * ce, cb * se * ci + sb * si
-    beta_x, beta_y, beta_z = -sb * ce, -sb * se * ci + cb * si, -sb * se * si - cb * ci
-    eta_x, eta_y, eta_z = -cb * se, cb * ce * ci, cb * ce * si
-    squared = gx**2 + gy**2
-    across = jnp.sqrt(squared)
-    latitude = (beta_z * beta_rate / across, eta_z / across)
-    longitude = ((gx * beta_y - gy * beta_x) * beta_rate / squared,
-                 (gx * eta_y - gy * eta_x) / squared - orbit.rotation_ratio)
-    return latitude, longitude
-
-
-def _instantiated(tangent, like):
-    """A tangent as an array (zeros for a symbolic zero)."""
-    return jnp.zeros_like(like) if isinstance(tangent, SymbolicZero) else tangent
-
-
-@jax.custom_jvp
-def _positions(model: ScanModel, pixel, scan):
-    """:meth:`ScanModel.forward` of the control points, with a JVP from the closed-form partials
-    (:func:`_angle_partials`): the five unknowns' Jacobian costs a few products per point instead of a derivative of
-    every operation of the model per unknown (a batch of fits spends most of its time there)."""
-    return model.forward(pixel, scan)
-
-
-@functools.partial(_positions.defjvp, symbolic_zeros=True)
-def _positions_jvp(primals, tangents):
-    model, pixel, scan = primals
-    model_dot, pixel_dot, scan_dot = tangents
-    latitude, longitude = _positions(model, pixel, scan)
-    (latitude_psi, latitude_eta), (longitude_psi, longitude_eta) = _angle_partials(model, pixel, scan)
-    dot = {name: _instantiated(getattr(model_dot, name), getattr(model, name))
-           for name in FREE_PARAMETERS}
-    pixel_dot, scan_dot = _instantiated(pixel_dot, pixel), _instantiated(scan_dot, scan)
-    psi_dot = (dot["scanner_angle_span"] * (model.subtrack_pixel - pixel)
-               + model.scanner_angle_span * (dot["subtrack_pixel"] - pixel_dot)) / (model.n_pixels - 1)
-    sign = 1.0 if model.direction == "south" else -1.0
-    eta_dot = dot["orbital_angle_first"] + sign * (dot["orbital_angle_span"] * (scan - 1.0)
-                                                   + model.orbital_angle_span * scan_dot) / (model.n_scans - 1)
-    latitude_dot = latitude_psi * psi_dot + latitude_eta * eta_dot
-    longitude_dot = longitude_psi * psi_dot + longitude_eta * eta_dot + dot["ascending_node"]
-    orbit_dot = jax.tree_util.tree_leaves(model_dot.orbit, is_leaf=lambda t: isinstance(t, SymbolicZero))
-    if not all(isinstance(t, SymbolicZero) for t in orbit_dot):  # the orbit's own parameters: by autodiff
-        def at(orbit):
-            return eqx.tree_at(lambda m: m.orbit, model, orbit).forward_unchecked(pixel, scan)
-
-        orbit_tangent = jax.tree_util.tree_map(_instantiated, model_dot.orbit, model.orbit,
-                                               is_leaf=lambda t: isinstance(t, SymbolicZero))
-        latitude_orbit, longitude_orbit = jax.jvp(at, (model.orbit,), (orbit_tangent,))[1]
-        latitude_dot, longitude_dot = latitude_dot + latitude_orbit, longitude_dot + longitude_orbit
-    return (latitude, longitude), (latitude_dot, longitude_dot)
-
-
 def _predict(model: ScanModel, args):
     """The control points' latitude and longitude (unwrapped next to ``reference_longitude``) from the model."""
     pixel, scan, reference_longitude = args
-    latitude, longitude = _positions(model, jnp.asarray(pixel, float), jnp.asarray(scan, float))
+    latitude, longitude = model.forward(jnp.asarray(pixel, float), jnp.asarray(scan, float))
     return {"latitude": latitude, "longitude": reference_longitude + _wrap(longitude - reference_longitude)}
 
 
