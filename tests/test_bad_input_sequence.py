@@ -18,6 +18,7 @@ from seaice_jax.workflows.image_sequence import (
     run_track,
     save_stack,
 )
+from seaice_jax.workflows.sequence_adjust import run_adjust
 
 HEAD = ('epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = [74.0, -85.0]\npixel_m = [2500.0, 2500.0]\n'
         'shape = [10, 10]\n')
@@ -109,6 +110,26 @@ def test_a_film_over_the_budget_is_refused_with_its_size(remapped, tmp_path):
     with pytest.raises(SeaiceError, match=r"fps must be > 0"):
         run_movie(remapped, tmp_path / "film.gif", fps=0.0)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_film_with_a_land_mask_not_of_bools_on_its_grid_is_refused(remapped, tmp_path):
+    """A mask of 0/1 floats (or of another grid) would fill the wrong cells: refused naming the file, nothing
+    written."""
+    for name, mask in (("floats.npy", np.zeros((150, 150))), ("other.npy", np.zeros((10, 10), bool))):
+        np.save(tmp_path / name, mask)
+        with pytest.raises(SeaiceError, match=rf"{name}: a land mask must be a bool array of the grid's shape "
+                                              r"\(150, 150\)"):
+            run_movie(remapped, tmp_path / "film.gif", land_mask=tmp_path / name)
+    assert not (tmp_path / "film.gif").exists()
+
+
+def test_a_static_mask_not_of_bools_on_the_grid_is_refused_before_anything_is_written(tmp_path):
+    project = _project(tmp_path)
+    np.save(tmp_path / "static.npy", np.ones((10, 10)))
+    with pytest.raises(SeaiceError, match=r"static.npy: a static-surface mask must be a bool array of the grid's "
+                                          r"shape \(10, 10\), got float64"):
+        run_adjust(project, tmp_path / "adjusted", static=tmp_path / "static.npy", progress=False)
+    assert not (tmp_path / "adjusted").exists()
 
 
 @pytest.mark.parametrize(("argv", "message"), [

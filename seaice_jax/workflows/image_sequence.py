@@ -642,16 +642,20 @@ def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str |
     return tuple(files)
 
 
-def land_of_grid(land: str | os.PathLike, grid: MapGrid) -> np.ndarray:
+def land_of_grid(land: str | os.PathLike, grid: MapGrid, kind: str = "land mask") -> np.ndarray:
     """The land mask on ``grid``: ``"coastline"`` (GSHHG, :func:`~seaice_jax.io.coastline.land_mask_of_grid`) or a
-    ``.npy`` bool array of the grid's shape."""
+    ``.npy`` bool array of the grid's shape (any other file is refused naming it and ``kind``: a mask of 0/1 floats
+    or of another grid would mark the wrong cells)."""
     if str(land) == "coastline":
         return land_mask_of_grid(grid)
     if not Path(land).is_file():
-        raise SeaiceError(f"{land}: no such land mask (give 'coastline' or a .npy bool array on the grid)")
-    mask = np.load(land)
+        raise SeaiceError(f"{land}: no such {kind} (give 'coastline' or a .npy bool array on the grid)")
+    try:
+        mask = np.load(land, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise SeaiceError(f"{land}: not a .npy array ({error})") from None
     if mask.shape != grid.shape or mask.dtype != bool:
-        raise SeaiceError(f"{land}: a land mask must be a bool array of the grid's shape {grid.shape}, got "
+        raise SeaiceError(f"{land}: a {kind} must be a bool array of the grid's shape {grid.shape}, got "
                           f"{mask.dtype} {mask.shape}")
     return mask
 
@@ -828,11 +832,7 @@ def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land
         raise SeaiceError(f"--scale {scale}: {len(stack.names)} frames of {stack.grid.shape[1] * scale} x "
                           f"{stack.grid.shape[0] * scale} pixels need {film_bytes / 2**30:.1f} GiB, more than the "
                           f"{MEMORY_BUDGET / 2**30:.0f} GiB budget")
-    land = None
-    if land_mask is not None:
-        land = np.load(land_mask)
-        if land.shape != stack.grid.shape:
-            raise SeaiceError(f"{land_mask}: land mask shape {land.shape} is not the grid's {stack.grid.shape}")
+    land = None if land_mask is None else land_of_grid(land_mask, stack.grid)
     points = None if records is None else _floe_pixels(records, stack)
     labels = [time_after(stack.epoch, t)[:16].replace("T", " ") for t in stack.times]
     overlay = map_overlay(stack.grid, int(scale), land=land is None) if map_decorations else None

@@ -24,7 +24,7 @@ from seaice_jax.imagery.ties import TieOptions, TiePoints, find_ties, grid_mask
 from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.sequence import MODEL_KEYS, SequenceProject, read_sequence
 from seaice_jax.outputs import output_folder
-from seaice_jax.workflows.image_sequence import Step, rectify_images, save_models
+from seaice_jax.workflows.image_sequence import Step, land_of_grid, rectify_images, save_models
 
 METHODS = ("simultaneous", "per-image")
 
@@ -159,9 +159,7 @@ def run_adjust(project_path: str | os.PathLike, out_dir: str | os.PathLike, meth
             mask = land_mask_of_grid(project.grid)
         else:
             inputs += (mask_path,)
-            mask = np.load(mask_path)
-        if mask.shape != project.grid.shape:
-            raise SeaiceError(f"{mask_path}: shape {mask.shape} differs from the project's grid {project.grid.shape}")
+            mask = land_of_grid(mask_path, project.grid, "static-surface mask")
     with output_folder(out_dir, overwrite, inputs=inputs) as folder:
         result = adjust_project(project, method, mask, progress=progress)
         files = folder.final(write_adjusted(result, folder.path))
