@@ -97,7 +97,7 @@ def read_sequence_names(project):
 
 
 def test_killed_worker_is_retried_and_the_job_completes(archive, tmp_path):
-    project, single_dir, _ = archive
+    project, single_dir, single = archive
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=NO_DASHBOARD)
     with cluster, Client(cluster) as client:
         outcome = {}
@@ -117,14 +117,16 @@ def test_killed_worker_is_retried_and_the_job_completes(archive, tmp_path):
             busy = {worker: keys for worker, keys in cast(dict, client.processing()).items() if keys}
             time.sleep(0.05)
         assert busy, "no task started"
-        victim, tasks = next(iter(busy.items()))
+        victim = next(iter(busy))
         worker_pid = cast(dict, client.run(os.getpid, workers=[victim]))[victim]
         os.kill(worker_pid, signal.SIGKILL)  # as the kernel's out-of-memory killer would
         runner.join(timeout=240)
         assert not runner.is_alive(), "the job did not complete after the kill"
         assert "error" not in outcome, outcome.get("error")
         assert victim not in client.scheduler_info(n_workers=-1)["workers"]  # it died (its nanny started another)
-    assert tasks and outcome["step"].result.workers >= 1
+    # every image of the archive, the killed worker's too, remapped once and reported in project order
+    images = outcome["step"].result.images
+    assert [image.index for image in images] == list(range(len(single.result.names)))
     _same_outputs(single_dir, tmp_path / "dask")
 
 

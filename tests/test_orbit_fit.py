@@ -247,14 +247,17 @@ def test_the_fits_stop_within_a_billionth_of_sigma_of_the_minimum():
 
 def test_northbound_fit_is_the_direct_northbound_adjustment():
     """The fit runs both directions as one southbound problem (the span's sign carries the direction); its
-    northbound answer, covariance included, equals the adjustment set up with the northbound model itself."""
+    northbound answer, covariance included, equals the adjustment set up with the northbound model itself, started
+    from the control points' own northbound start (not from the answer)."""
     truth = noaa_image("north")
     control = simulate_control_points(truth, 8, np.random.default_rng(5), 800.0)[0]
     fit = fit_scan_model(control, truth.orbit, direction="north")
     assert fit.model.direction == "north" and float(fit.model.orbital_angle_span) > 0
     assert fit.adjustment is not None
-    direct = orbit_solver(control, fit.model)({"latitude": control.latitude, "longitude": control.longitude},
-                                              control_args(control))
+    start = initial_guess(control, truth.orbit, "north")  # the northbound model itself, from the control's start
+    assert start.direction == "north"
+    direct = orbit_solver(control, start)({"latitude": control.latitude, "longitude": control.longitude},
+                                          control_args(control))
     for name in direct.parameter_names:
         assert float(getattr(fit.model, name)) == pytest.approx(float(getattr(direct.parameters, name)), rel=1e-9,
                                                                 abs=1e-11)
