@@ -22,12 +22,18 @@ from distributed import Client, LocalCluster
 from seaice_jax.cli import main
 from seaice_jax.errors import EXIT_USAGE, SeaiceError
 from seaice_jax.imagery.tracking import GOOD, NO_DATA
-from seaice_jax.io.sequence import read_sequence, write_sequence
+from seaice_jax.io.sequence import make_grid, read_sequence, write_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.simulate.satellite import simulate_sequence
 from seaice_jax.timefmt import time_after
 from seaice_jax.workflows.archive import remap_archive, run_remap_archive, run_track_archive
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap, run_track
+from seaice_jax.workflows.image_sequence import (
+    OVERVIEW_PANELS,
+    SIMULATED_GRID,
+    run_remap,
+    run_track,
+    write_overview,
+)
 
 IMAGES = 6
 NO_DASHBOARD = cast(str, None)  # typed str; None starts no web server
@@ -301,3 +307,21 @@ def test_sharded_realizations_equal_unsharded_on_two_host_devices(tmp_path):
     assert sharded.shape == (5, 12) and np.all(np.isfinite(sharded))
     assert np.all(np.ptp(sharded, axis=1) > 0)  # twelve different realizations, not one repeated
     np.testing.assert_allclose(sharded, unsharded, rtol=1e-12, atol=0)
+
+
+def test_the_overview_of_a_long_archive_shows_and_reads_twelve_images(tmp_path):
+    """``remapped.png`` of a 30-image sequence: 12 images evenly spaced, the first and the last among them, each
+    read once (an archive's overview does not hold every image's pixels)."""
+    grid = make_grid(**SIMULATED_GRID)
+    read = []
+
+    def image(k):
+        read.append(k)
+        return np.full(grid.shape, float(k))
+
+    names = [f"IMG{k:02d}" for k in range(30)]
+    path = write_overview(tmp_path / "remapped.png", names, np.arange(30) * 86400.0, "1983-03-08T00:00:00Z", grid,
+                          image)
+    assert path.read_bytes()[:4] == b"\x89PNG"
+    assert len(read) == len(set(read)) == OVERVIEW_PANELS == 12 and read[0] == 0 and read[-1] == 29
+    assert np.all(np.diff(read) >= 2) and np.ptp(np.diff(read)) <= 1

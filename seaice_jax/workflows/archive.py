@@ -48,7 +48,6 @@ from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
 from seaice_jax.outputs import check_output, output_folder
-from seaice_jax.report.figures import plot_remapped
 from seaice_jax.timefmt import time_after
 from seaice_jax.workflows.image_sequence import (
     Rectification,
@@ -64,6 +63,7 @@ from seaice_jax.workflows.image_sequence import (
     remap_sequence,
     track_pair,
     track_report,
+    write_overview,
     write_pair,
     write_rectification,
     write_tracked,
@@ -226,15 +226,12 @@ def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
     files = [_write_npz(staging / "remapped.npz", small, {"values": (np.float64, shape), "valid": (np.bool_, shape),
                                                            "sigma": (np.float64, shape)}, parts)]
     files += write_rectification(staging / "rectification.csv", [image.rectification for image in images])
-    values = np.empty((len(parts), *shape))
-    for k, part in enumerate(parts):
-        with np.load(part) as data:
-            values[k] = data["values"]
-    labels = [time_after(project.epoch, t) for t in times]
-    x, y = (np.asarray(a) / 1000 for a in project.grid.xy())
-    files.append(plot_remapped(staging / "remapped.png", values, [
-        f"{n}\n{label[:16]}" for n, label in zip(names, labels, strict=True)], [x.min(), x.max(), y.min(), y.max()],
-        projection=project.grid.projection))
+
+    def values(k):
+        with np.load(parts[k]) as data:
+            return data["values"]
+
+    files.append(write_overview(staging / "remapped.png", names, times, project.epoch, project.grid, values))
     return files
 
 

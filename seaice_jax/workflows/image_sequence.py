@@ -419,12 +419,29 @@ def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathL
                   disable=not progress, leave=False)]
     files.append(save_stack(out / "remapped.npz", stack))
     files += write_rectification(out / "rectification.csv", rectifications)
-    x, y = (np.asarray(a) / 1000 for a in stack.grid.xy())
-    files.append(plot_remapped(out / "remapped.png", stack.values, [
-        f"{n}\n{label[:16]}" for n, label in zip(stack.names, labels, strict=True)], [x.min(), x.max(), y.min(),
-                                                                                      y.max()],
-        projection=stack.grid.projection))
+    files.append(write_overview(out / "remapped.png", stack.names, stack.times, stack.epoch, stack.grid,
+                                lambda k: stack.values[k]))
     return tuple(files)
+
+
+OVERVIEW_PANELS = 12
+"""Images the ``remapped.png`` overview shows at most, evenly spaced through the sequence (the first and the last
+among them): an archive's figure stays readable, and only the images shown are read."""
+
+
+def write_overview(path: Path, names, times, epoch: str, grid: MapGrid, image,
+                   limit: int = OVERVIEW_PANELS) -> Path:
+    """``remapped.png``: images of the sequence on the grid side by side
+    (:func:`~seaice_jax.report.figures.plot_remapped`), at most ``limit`` of them, evenly spaced (each titled with
+    its name, time and, when some are left out, its place in the sequence); ``image(k)`` gives image ``k``'s
+    values ``grid.shape``, called for the images shown only."""
+    count = len(names)
+    shown = np.unique(np.round(np.linspace(0, count - 1, min(count, limit))).astype(int))
+    titles = [f"{names[k]}" + (f" ({k + 1} of {count})" if shown.size < count else "") + "\n"
+              + time_after(epoch, times[k])[:16] for k in shown]
+    x, y = (np.asarray(a) / 1000 for a in grid.xy())
+    return plot_remapped(path, [image(int(k)) for k in shown], titles, [x.min(), x.max(), y.min(), y.max()],
+                         projection=grid.projection)
 
 
 def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
