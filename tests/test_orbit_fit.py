@@ -174,6 +174,19 @@ def test_bad_control_points_are_named():
         fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="east")
 
 
+def test_control_points_join_and_subset_keep_every_field_and_refuse_a_repeated_id():
+    control = figure_3_3_control()
+    both = control.joined(control, "again ")
+    assert len(both) == 10 and both.ids[5] == "again 3030"
+    np.testing.assert_array_equal(np.asarray(both.latitude), np.tile(np.asarray(control.latitude), 2))
+    part = both.subset(np.arange(10) % 3 == 1)
+    assert part.ids == ("3031", "3035", "again 3032")
+    for name in ("pixel", "scan", "latitude", "longitude", "sigma"):
+        np.testing.assert_array_equal(np.asarray(getattr(part, name)), np.asarray(getattr(both, name))[[1, 4, 7]])
+    with pytest.raises(SeaiceError, match="control point 3030: duplicate id"):
+        control.joined(control)
+
+
 @pytest.fixture(scope="module")
 def noisy_batch():
     """A simulated southbound image, 7 control points (σ 1 km), the solver from the fit's own start and 40 noisy

@@ -60,9 +60,7 @@ def _secondary_as_control(image: ImageObservations, positions: dict) -> ControlP
 def _merge(a: ControlPoints | None, b: ControlPoints | None) -> ControlPoints | None:
     if a is None or b is None:
         return a if b is None else b
-    return ControlPoints(np.concatenate([a.pixel, b.pixel]), np.concatenate([a.scan, b.scan]),
-                         np.concatenate([a.latitude, b.latitude]), np.concatenate([a.longitude, b.longitude]),
-                         np.concatenate([a.sigma, b.sigma]), a.ids + tuple(f"secondary {i}" for i in b.ids))
+    return a.joined(b, "secondary ")
 
 
 def sequential_fit(images: list[ImageObservations]):

@@ -313,16 +313,9 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
         rejected.append(ids[drop])
         active[drop] = False
     if final:
-        fit = fit_scan_model(_subset(control, active[:len(control)]), model.orbit, direction=model.direction,
+        fit = fit_scan_model(control.subset(active[:len(control)]), model.orbit, direction=model.direction,
                              n_pixels=model.n_pixels, n_scans=model.n_scans)
     return fit, tuple(rejected)
-
-
-def _subset(control: ControlPoints, keep: np.ndarray) -> ControlPoints:
-    index = np.flatnonzero(keep)
-    return ControlPoints(np.asarray(control.pixel)[index], np.asarray(control.scan)[index],
-                         np.asarray(control.latitude)[index], np.asarray(control.longitude)[index],
-                         np.asarray(control.sigma)[index], [control.ids[k] for k in index])
 
 
 def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,

@@ -68,6 +68,24 @@ class ControlPoints(eqx.Module):
     def __len__(self):
         return len(self.ids)
 
+    def joined(self, other: "ControlPoints", prefix: str = "") -> "ControlPoints":
+        """These points followed by ``other``'s (their ids with ``prefix``: an id may appear once only)."""
+        def both(name):
+            return np.concatenate([np.asarray(getattr(self, name)), np.asarray(getattr(other, name))])
+
+        return ControlPoints(both("pixel"), both("scan"), both("latitude"), both("longitude"), both("sigma"),
+                             [*self.ids, *(f"{prefix}{i}" for i in other.ids)])
+
+    def subset(self, keep) -> "ControlPoints":
+        """The points where ``keep`` ``(n,)`` bool is true, in order."""
+        index = np.flatnonzero(np.asarray(keep, bool))
+
+        def kept(name):
+            return np.asarray(getattr(self, name))[index]
+
+        return ControlPoints(kept("pixel"), kept("scan"), kept("latitude"), kept("longitude"), kept("sigma"),
+                             [self.ids[k] for k in index])
+
 
 @dataclass(frozen=True)
 class ImageObservations:

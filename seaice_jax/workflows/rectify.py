@@ -96,14 +96,6 @@ class Rectification:
     written: tuple[Path, ...]
 
 
-def _joined(first: ControlPoints, second: ControlPoints) -> ControlPoints:
-    def both(name):
-        return np.concatenate([np.asarray(getattr(first, name)), np.asarray(getattr(second, name))])
-
-    return ControlPoints(both("pixel"), both("scan"), both("latitude"), both("longitude"), both("sigma"),
-                         [*first.ids, *second.ids])
-
-
 def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: float | None = None,
                 max_latitude: float | None = None, period_minutes: float | None = None,
                 earth_day_minutes: float | None = None, direction: str = "auto", method: str = "gauss-newton",
@@ -177,7 +169,7 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
             say(f"{len(fit.control)} coastline control points ({sum(len(r) for r in automatic.rejected)} rejected "
                 "by the w-test)")
             if manual is not None:
-                fit, _ = fit_with_snooping(_joined(fit.control, manual), fit.model)
+                fit, _ = fit_with_snooping(fit.control.joined(manual), fit.model)
         else:
             assert manual is not None
             fit = fit_scan_model(manual, orbit, direction=direction, n_pixels=n_pixels, n_scans=n_scans,
