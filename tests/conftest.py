@@ -57,15 +57,33 @@ def rng():
 _LIBC = ctypes.CDLL(None)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _compilations_of_one_file():
-    """Each test file's compiled executables are dropped when it ends, and the freed heap is handed back to the
-    system (glibc's ``malloc_trim``): a test process runs many files, and their memory piled up. Measured in one
-    process, no slower either way: 8 files peaked at 3.4 GB keeping the executables, 1.6 GB dropping them; 5 files
-    left 1.76 GB resident without the trim, 0.94 GB with it. A later file that needs an executable again reads it
-    from the session's persistent cache."""
-    yield
+def _drop_compilations():
+    """Drop the process's compiled executables and hand the freed heap back to the system (glibc's
+    ``malloc_trim``); a later test that needs an executable again reads it from the session's persistent cache."""
     jax.clear_caches()
     gc.collect()
     if hasattr(_LIBC, "malloc_trim"):  # glibc
         _LIBC.malloc_trim(0)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _compilations_of_one_file():
+    """Each test file's compiled executables are dropped when it ends: a test process runs many files, and their
+    memory piled up. Measured in one process, no slower either way: 8 files peaked at 3.4 GB keeping the
+    executables, 1.6 GB dropping them; 5 files left 1.76 GB resident without the trim, 0.94 GB with it."""
+    yield
+    _drop_compilations()
+
+
+RESIDENT_CEILING = 2.0e9
+"""Bytes resident after a test above which the process drops its compilations at once, not at the end of the file
+(a file of several command-line pipelines, tests/test_sequence_block.py, reached 2.3 GB)."""
+
+
+@pytest.fixture(autouse=True)
+def _compilations_beyond_the_ceiling():
+    yield
+    if os.path.exists("/proc/self/statm"):  # Linux: the pages resident now
+        with open("/proc/self/statm") as statm:
+            if int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") > RESIDENT_CEILING:
+                _drop_compilations()
