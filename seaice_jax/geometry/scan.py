@@ -28,7 +28,7 @@ from jaxtyping import Array, Float
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry._checks import is_traced, raise_where_nan
 from seaice_jax.geometry._vectors import as_float as _as_float
-from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, unit_vector
+from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, latitude_longitude, unit_vector
 from seaice_jax.geometry.earth import wrap_angle as _wrap
 
 Direction = Literal["south", "north"]
@@ -140,12 +140,9 @@ def _ground_direction(beta, eta, inclination):
 
     Differentiated in closed form: with g = cos β u(η) − sin β n a unit vector, ∂latitude = ∂g_z / h and
     ∂longitude = (g_x ∂g_y − g_y ∂g_x) / h² (h² = g_x² + g_y²), ∂g/∂β = −sin β u(η) − cos β n, ∂g/∂η = cos β u'(η),
-    ∂g/∂i = (0, −g_z, g_y): a few products per point and unknown, where autodiff differentiates every operation
-    and XLA recomputes the trigonometry in each fused kernel of the derivative (a batch of image fits spent most of
-    its time there).
+    ∂g/∂i = (0, −g_z, g_y): a few products per point and unknown, where autodiff differentiates every operation.
     """
-    (gx, gy, gz), _ = _ground_vector(beta, eta, inclination)
-    return jnp.arctan2(gz, jnp.hypot(gx, gy)), jnp.arctan2(gy, gx)
+    return latitude_longitude(jnp.stack(jnp.broadcast_arrays(*_ground_vector(beta, eta, inclination)[0]), axis=-1))
 
 
 @_ground_direction.defjvp
@@ -157,9 +154,8 @@ def _ground_direction_jvp(primals, tangents):
     dy = (-sb * se * ci + cb * si) * beta_dot + cb * ce * ci * eta_dot - gz * inclination_dot
     dz = (-sb * se * si - cb * ci) * beta_dot + cb * ce * si * eta_dot + gy * inclination_dot
     squared = gx**2 + gy**2
-    across = jnp.sqrt(squared)
-    primal = (jnp.arctan2(gz, jnp.hypot(gx, gy)), jnp.arctan2(gy, gx))
-    return primal, (dz / across, (gx * dy - gy * dx) / squared)
+    primal = latitude_longitude(jnp.stack(jnp.broadcast_arrays(gx, gy, gz), axis=-1))
+    return primal, (dz / jnp.sqrt(squared), (gx * dy - gy * dx) / squared)
 
 
 class ScanModel(eqx.Module):
