@@ -296,7 +296,8 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
         return _iterate_trust_region(problem, options, dof)
 
     def body(state):
-        theta, points, linear, cost, damping, growth, scale, rotation, steps, _, _ = state
+        theta, points, linear, damping, growth, scale, rotation, steps, _, _ = state
+        cost = _square_sum(linear)  # of the kept linearization
         step_theta, step_points, gain, gauss_newton, scale, rotation = _linear_step(
             problem, layout, options, linear, points.shape, damping, scale, rotation)
         trial_linear = linearize_all(problem, theta + step_theta, points + step_points)
@@ -316,20 +317,18 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
         growth = jnp.where(accept, 2.0, 2.0 * growth)
         # damped to nothing and still no decrease: no direction lowers the square sum beyond its roundoff
         converged = converged | ((damping > MAX_DAMPING) & jnp.isfinite(cost))
-        cost = jnp.where(accept, trial, cost)
-        return (theta, points, linear, cost, damping, growth, scale, rotation, steps + 1,
-                converged | ~jnp.isfinite(cost), converged)
+        ended = converged | ~(accept | jnp.isfinite(cost))  # an accepted trial is finite
+        return theta, points, linear, damping, growth, scale, rotation, steps + 1, ended, converged
 
     def running(state):
-        return ~state[9] & (state[8] < options.max_steps)
+        return ~state[8] & (state[7] < options.max_steps)
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
     linear = linearize_all(problem, problem.start, problem.points)
     rotation = _start_rotation(problem, options, linear)
-    start = (problem.start, problem.points, linear, _square_sum(linear), jnp.full((), options.initial_damping),
-             jnp.full((), 2.0), jnp.zeros(problem.unknowns), rotation, jnp.zeros((), int), jnp.zeros((), bool),
-             jnp.zeros((), bool))
-    theta, points, linear, _, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
+    start = (problem.start, problem.points, linear, jnp.full((), options.initial_damping), jnp.full((), 2.0),
+             jnp.zeros(problem.unknowns), rotation, jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
+    theta, points, linear, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
     return theta, points, linear, rotation, steps, converged
 
 
@@ -354,7 +353,8 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
         return x[:n], x[n:].reshape(problem.points.shape)
 
     def body(state):
-        x, linear, cost, radius, scale, rotation, steps, _, _ = state
+        x, linear, radius, scale, rotation, steps, _, _ = state
+        cost = _square_sum(linear)  # of the kept linearization
         residuals, jacobian = dense.assemble(problem, linear)
         scale = jnp.maximum(scale, dense.column_norms(jacobian))  # Moré's scaling, as the damped loop's
         factors = dense.Factors(jacobian, scale, options.factorization, rotation, dense.STEP_ORTHOGONALITY)
@@ -377,18 +377,17 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
             residuals), dof))
         x = jnp.where(accept, x + step, x)
         linear = _kept(accept, trial_linear, linear)
-        cost = jnp.where(accept, trial, cost)
-        return (x, linear, cost, radius, scale, factors.vt.T, steps + 1, converged | ~jnp.isfinite(cost),
-                converged)
+        ended = converged | ~(accept | jnp.isfinite(cost))  # an accepted trial is finite
+        return x, linear, radius, scale, factors.vt.T, steps + 1, ended, converged
 
     def running(state):
-        return ~state[7] & (state[6] < options.max_steps)
+        return ~state[6] & (state[5] < options.max_steps)
 
     linear = linearize_all(problem, problem.start, problem.points)
-    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear, _square_sum(linear), jnp.ones(()),
+    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear, jnp.ones(()),
              jnp.zeros(problem.unknowns), _start_rotation(problem, options, linear), jnp.zeros((), int),
              jnp.zeros((), bool), jnp.zeros((), bool))
-    x, linear, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
+    x, linear, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
     return *unpacked(x), linear, rotation, steps, converged
 
 
