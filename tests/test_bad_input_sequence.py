@@ -120,6 +120,9 @@ def test_a_film_with_a_land_mask_not_of_bools_on_its_grid_is_refused(remapped, t
         with pytest.raises(SeaiceError, match=rf"{name}: a land mask must be a bool array of the grid's shape "
                                               r"\(150, 150\)"):
             run_movie(remapped, tmp_path / "film.gif", land_mask=tmp_path / name)
+    (tmp_path / "text.npy").write_text("not an array")
+    with pytest.raises(SeaiceError, match=r"text.npy: not a .npy array"):
+        run_movie(remapped, tmp_path / "film.gif", land_mask=tmp_path / "text.npy")
     assert not (tmp_path / "film.gif").exists()
 
 
