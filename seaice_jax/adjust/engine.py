@@ -24,6 +24,7 @@ shape compiles nothing.
 import dataclasses
 import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -33,7 +34,7 @@ from jaxtyping import Array, Bool, Float, PyTree
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import dense, schur, trust_region
-from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease
+from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, unlinearized
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
 from seaice_jax.errors import SeaiceError
 
@@ -288,6 +289,69 @@ def _flat(options: EngineOptions, cost, gauss_newton, dof):
     return gauss_newton <= jnp.maximum(options.decrease_tolerance**2 * sigma0_squared, ROUNDOFF * cost)
 
 
+class _Damped(NamedTuple):
+    """The damped loop's state: the kept estimates and their linearization, the step pending from them (the next
+    trial) with the decreases its linearized model and the undamped one predict, and the damping."""
+
+    theta: Array
+    points: Array
+    linear: dict
+    started: Array  # False until the start itself, the first trial (a pending step of 0), is linearized
+    step_theta: Array
+    step_points: Array
+    gain: Array
+    gauss_newton: Array
+    small: Array  # the pending step is below the tolerances, or the Gauss-Newton decrease flat: the minimum
+    damping: Array
+    growth: Array
+    scale: Array
+    rotation: Array
+    steps: Array
+    ended: Array
+    converged: Array
+
+
+class _Region(NamedTuple):
+    """The trust-region loop's state: the kept estimates (θ and the points, flat) and their linearization, the
+    pending step with its scaled norm, damping and predicted decrease, and the radius."""
+
+    x: Array
+    linear: dict
+    started: Array
+    step: Array
+    norm: Array
+    damping: Array
+    gain: Array
+    small: Array
+    radius: Array
+    scale: Array
+    rotation: Array
+    steps: Array
+    ended: Array
+    converged: Array
+
+
+def _loop(problem: Problem, options: EngineOptions, state, trial, proposal):
+    """Iterate ``proposal(trial(state))`` from ``state`` (nothing linearized yet; the start is the pending trial)
+    until it ends or has taken ``max_steps`` steps: one linearization and one factorization in the compiled loop.
+
+    Where the dense backend rotates by Jacobi, the first iteration runs before the loop: under ``vmap``, lanes that
+    share the start and the model (a Monte Carlo of the observations) share the start's Jacobian, so its
+    factorization is computed once for all of them."""
+
+    def body(state):
+        return proposal(trial(state))
+
+    if options.backend == "dense" and dense.uses_jacobi(options.factorization, problem.unknowns):
+        state = body(state)
+    return jax.lax.while_loop(lambda s: ~s.ended & ((s.steps < options.max_steps) | ~s.started), body, state)
+
+
+def _kept_cost(state):
+    """The square sum at the kept estimates (∞ before the start is linearized: any finite trial is kept)."""
+    return jnp.where(state.started, _square_sum(state.linear), jnp.inf)
+
+
 def _iterate(problem: Problem, layout, options: EngineOptions, dof):
     """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton): the
     estimates, their linearization, the dense backend's last right singular vectors, the steps and whether
@@ -295,52 +359,45 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
     if options.strategy == "trust-region":
         return _iterate_trust_region(problem, options, dof)
 
-    def body(state):
-        theta, points, linear, damping, growth, scale, rotation, steps, _, _ = state
-        cost = _square_sum(linear)  # of the kept linearization
-        step_theta, step_points, gain, gauss_newton, scale, rotation = _linear_step(
-            problem, layout, options, linear, points.shape, damping, scale, rotation)
-        trial_linear = linearize_all(problem, theta + step_theta, points + step_points)
+    def trial(state: _Damped) -> _Damped:
+        cost = _kept_cost(state)
+        theta, points = state.theta + state.step_theta, state.points + state.step_points
+        trial_linear = linearize_all(problem, theta, points)
         trial = _square_sum(trial_linear)
         # a last step whose predicted decrease is within the rounding of the square sum: taken if the square sum
         # rises by no more than that rounding either
-        within_noise = (gauss_newton <= EVALUATION_NOISE * cost) & (trial <= (1.0 + EVALUATION_NOISE) * cost)
+        within_noise = (state.gauss_newton <= EVALUATION_NOISE * cost) & (trial <= (1.0 + EVALUATION_NOISE) * cost)
         accept = jnp.isfinite(trial) & ((trial < cost) | within_noise | (not options.monotone))
-        tiny = _small(options, step_theta, theta) & _small(options, step_points, points)
-        converged = jnp.isfinite(cost) & (tiny | _flat(options, cost, gauss_newton, dof))
-        theta = jnp.where(accept, theta + step_theta, theta)
-        points = jnp.where(accept, points + step_points, points)
-        linear = _kept(accept, trial_linear, linear)
-        ratio = (cost - trial) / jnp.maximum(gain, 1e-300)
-        damping = jnp.where(accept, damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
-                            jnp.where(damping == 0, INITIAL_DAMPING, damping * growth))
-        growth = jnp.where(accept, 2.0, 2.0 * growth)
+        ratio = (cost - trial) / jnp.maximum(state.gain, 1e-300)
+        damping = jnp.where(accept, state.damping * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * ratio - 1.0) ** 3),
+                            jnp.where(state.damping == 0, INITIAL_DAMPING, state.damping * state.growth))
+        damping = jnp.where(state.started, damping, state.damping)
+        growth = jnp.where(state.started, jnp.where(accept, 2.0, 2.0 * state.growth), state.growth)
         # damped to nothing and still no decrease: no direction lowers the square sum beyond its roundoff
-        converged = converged | ((damping > MAX_DAMPING) & jnp.isfinite(cost))
-        ended = converged | ~(accept | jnp.isfinite(cost))  # an accepted trial is finite
-        return theta, points, linear, damping, growth, scale, rotation, steps + 1, ended, converged
+        converged = jnp.isfinite(cost) & (state.small | (damping > MAX_DAMPING))
+        return state._replace(
+            theta=jnp.where(accept, theta, state.theta), points=jnp.where(accept, points, state.points),
+            linear=_kept(accept | ~state.started, trial_linear, state.linear), started=jnp.ones((), bool),
+            damping=damping, growth=growth, steps=state.steps + state.started.astype(int),
+            ended=converged | ~(accept | jnp.isfinite(cost)), converged=converged)  # an accepted trial is finite
 
-    def running(state):
-        return ~state[8] & (state[7] < options.max_steps)
+    def proposal(state: _Damped) -> _Damped:
+        cost = _square_sum(state.linear)
+        step_theta, step_points, gain, gauss_newton, scale, rotation = _linear_step(
+            problem, layout, options, state.linear, state.points.shape, state.damping, state.scale, state.rotation)
+        small = ((_small(options, step_theta, state.theta) & _small(options, step_points, state.points))
+                 | _flat(options, cost, gauss_newton, dof))
+        return state._replace(step_theta=step_theta, step_points=step_points, gain=gain, gauss_newton=gauss_newton,
+                              small=small, scale=scale, rotation=rotation)
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
-    linear = linearize_all(problem, problem.start, problem.points)
-    rotation = _start_rotation(problem, options, linear)
-    start = (problem.start, problem.points, linear, jnp.full((), options.initial_damping), jnp.full((), 2.0),
-             jnp.zeros(problem.unknowns), rotation, jnp.zeros((), int), jnp.zeros((), bool), jnp.zeros((), bool))
-    theta, points, linear, _, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
-    return theta, points, linear, rotation, steps, converged
-
-
-def _start_rotation(problem: Problem, options: EngineOptions, linear):
-    """Where the first iteration's Jacobi rotations start: the right singular vectors of the start's column-scaled
-    Jacobian, factored before the loop (under ``vmap``, lanes that share the start and the model, such as a Monte
-    Carlo of the observations, share this factorization: it is computed once for all of them, and the first
-    iteration's rotations find it done); the identity where the factorization takes no rotations."""
-    if options.backend != "dense" or not dense.uses_jacobi(options.factorization, problem.unknowns):
-        return jnp.eye(problem.unknowns if options.backend == "dense" else 0)
-    _, jacobian = dense.assemble(problem, linear)
-    return dense.Factors(jacobian, factorization=options.factorization, orthogonality=dense.STEP_ORTHOGONALITY).vt.T
+    n, no = problem.start.shape[0], jnp.zeros((), bool)
+    start = _Damped(problem.start, problem.points, unlinearized(problem), no, jnp.zeros(n),
+                    jnp.zeros(problem.points.shape), jnp.zeros(()), jnp.zeros(()), no,
+                    jnp.full((), options.initial_damping), jnp.full((), 2.0), jnp.zeros(problem.unknowns),
+                    jnp.eye(problem.unknowns if options.backend == "dense" else 0), jnp.zeros((), int), no, no)
+    end = _loop(problem, options, start, trial, proposal)
+    return end.theta, end.points, end.linear, end.rotation, end.steps, end.converged
 
 
 def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
@@ -352,43 +409,46 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
     def unpacked(x):
         return x[:n], x[n:].reshape(problem.points.shape)
 
-    def body(state):
-        x, linear, radius, scale, rotation, steps, _, _ = state
-        cost = _square_sum(linear)  # of the kept linearization
-        residuals, jacobian = dense.assemble(problem, linear)
-        scale = jnp.maximum(scale, dense.column_norms(jacobian))  # Moré's scaling, as the damped loop's
-        factors = dense.Factors(jacobian, scale, options.factorization, rotation, dense.STEP_ORTHOGONALITY)
+    def trial(state: _Region) -> _Region:
+        cost = _kept_cost(state)
+        trial_linear = linearize_all(problem, *unpacked(state.x + state.step))
+        trial = _square_sum(trial_linear)
+        accept = jnp.isfinite(trial) & (trial < cost)
+        ratio = jnp.where(jnp.isfinite(trial), (cost - trial) / jnp.maximum(state.gain, 1e-300), 0.0)
+        radius = jnp.where(state.started, trust_region.updated_radius(state.radius, ratio, state.norm,
+                                                                       state.damping), state.radius)
+        collapsed = _small(options, radius / jnp.where(state.scale > 0, state.scale, 1.0), state.x)
+        converged = jnp.isfinite(cost) & (state.small | collapsed)
+        return state._replace(
+            x=jnp.where(accept, state.x + state.step, state.x), started=jnp.ones((), bool), radius=radius,
+            linear=_kept(accept | ~state.started, trial_linear, state.linear),
+            steps=state.steps + state.started.astype(int), ended=converged | ~(accept | jnp.isfinite(cost)),
+            converged=converged)
+
+    def proposal(state: _Region) -> _Region:
+        cost = _square_sum(state.linear)
+        residuals, jacobian = dense.assemble(problem, state.linear)
+        scale = jnp.maximum(state.scale, dense.column_norms(jacobian))  # Moré's scaling, as the damped loop's
+        factors = dense.Factors(jacobian, scale, options.factorization, state.rotation, dense.STEP_ORTHOGONALITY)
         projected = factors.left.T @ residuals
-        radius = jnp.where(steps == 0, trust_region.initial_radius(
-            jnp.linalg.norm(factors.scale * x), options.initial_radius,
-            trust_region.step_norm(factors.singular, projected, factors.kept, 0.0)), radius)
+        radius = jnp.where(state.steps == 0, trust_region.initial_radius(
+            jnp.linalg.norm(factors.scale * state.x), options.initial_radius,
+            trust_region.step_norm(factors.singular, projected, factors.kept, 0.0)), state.radius)
         damping = trust_region.damping_for_radius(factors.singular, projected, factors.kept, radius)
         step = factors.step(residuals, damping)
-        norm = trust_region.step_norm(factors.singular, projected, factors.kept, damping)
-        trial_linear = linearize_all(problem, *unpacked(x + step))
-        trial = _square_sum(trial_linear)
-        gain = predicted_decrease(problem, linear, *unpacked(step))
-        accept = jnp.isfinite(trial) & (trial < cost)
-        ratio = jnp.where(jnp.isfinite(trial), (cost - trial) / jnp.maximum(gain, 1e-300), 0.0)
-        radius = trust_region.updated_radius(radius, ratio, norm, damping)
-        tiny = _small(options, factors.step(residuals, 0.0), x)
-        collapsed = _small(options, radius / factors.scale, x)
-        converged = jnp.isfinite(cost) & (tiny | collapsed | _flat(options, cost, factors.gauss_newton_decrease(
-            residuals), dof))
-        x = jnp.where(accept, x + step, x)
-        linear = _kept(accept, trial_linear, linear)
-        ended = converged | ~(accept | jnp.isfinite(cost))  # an accepted trial is finite
-        return x, linear, radius, scale, factors.vt.T, steps + 1, ended, converged
+        small = (_small(options, factors.step(residuals, 0.0), state.x)
+                 | _flat(options, cost, factors.gauss_newton_decrease(residuals), dof))
+        return state._replace(
+            step=step, norm=trust_region.step_norm(factors.singular, projected, factors.kept, damping),
+            damping=damping, gain=predicted_decrease(problem, state.linear, *unpacked(step)), small=small,
+            radius=radius, scale=scale, rotation=factors.vt.T)
 
-    def running(state):
-        return ~state[6] & (state[5] < options.max_steps)
-
-    linear = linearize_all(problem, problem.start, problem.points)
-    start = (jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear, jnp.ones(()),
-             jnp.zeros(problem.unknowns), _start_rotation(problem, options, linear), jnp.zeros((), int),
-             jnp.zeros((), bool), jnp.zeros((), bool))
-    x, linear, _, _, rotation, steps, _, converged = jax.lax.while_loop(running, body, start)
-    return *unpacked(x), linear, rotation, steps, converged
+    no, zero = jnp.zeros((), bool), jnp.zeros(())
+    start = _Region(jnp.concatenate([problem.start, problem.points.reshape(-1)]), unlinearized(problem), no,
+                    jnp.zeros(problem.unknowns), zero, zero, zero, no, jnp.ones(()), jnp.zeros(problem.unknowns),
+                    jnp.eye(problem.unknowns), jnp.zeros((), int), no, no)
+    end = _loop(problem, options, start, trial, proposal)
+    return *unpacked(end.x), end.linear, end.rotation, end.steps, end.converged
 
 
 def _statistics(problem: Problem, layout, options: EngineOptions, theta, points, linear, rotation, cross_points):

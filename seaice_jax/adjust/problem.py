@@ -107,6 +107,15 @@ def linearize(block: ResidualBlock, theta, points) -> Linearization:
     return Linearization(values * weight, j_theta * weight[..., None], j_point * weight[..., None])
 
 
+def unlinearized(problem: Problem) -> dict:
+    """Zero linearizations of the shapes :func:`linearize_all` returns (a loop's state before its first
+    linearization)."""
+    width = problem.points.shape[1]
+    return {name: Linearization(jnp.zeros(b.sigma.shape), jnp.zeros(b.sigma.shape + b.global_index.shape[1:]),
+                                jnp.zeros(b.sigma.shape + (width if b.point_index is not None else 0,)))
+            for name, b in problem.blocks.items()}
+
+
 def linearize_all(problem: Problem, theta, points) -> dict:
     return {name: linearize(block, theta, points) for name, block in problem.blocks.items()}
 
