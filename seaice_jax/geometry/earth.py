@@ -5,6 +5,9 @@ unless a function says it is geodetic (WGS84). Geocentric Earth-fixed axes: x to
 north pole.
 """
 
+import functools
+
+import jax
 import jax.numpy as jnp
 from jax.typing import ArrayLike
 
@@ -29,6 +32,7 @@ EARTH_ROTATION_RATE = 7.292115e-5
 """Earth rotation rate, rad/s (WGS84 / IERS value, 2π / sidereal day)."""
 
 
+@jax.jit
 def unit_vector(latitude, longitude):
     """Unit vector of a point on the sphere.
 
@@ -43,6 +47,7 @@ def unit_vector(latitude, longitude):
     return jnp.stack([cos_lat * jnp.cos(longitude), cos_lat * jnp.sin(longitude), jnp.sin(latitude)], axis=-1)
 
 
+@jax.jit
 def latitude_longitude(vector):
     """Latitude and longitude (radians) of a geocentric vector of any length.
 
@@ -57,6 +62,7 @@ def latitude_longitude(vector):
     return jnp.arctan2(z, jnp.hypot(x, y)), jnp.arctan2(y, x)
 
 
+@jax.jit
 def north_east(position):
     """Local north and east unit vectors ``(..., 3)`` at geocentric positions ``(..., 3)`` (any length)."""
     latitude, longitude = latitude_longitude(position)
@@ -65,6 +71,7 @@ def north_east(position):
                        jnp.cos(latitude)], axis=-1)
     return north, east
 
+@jax.jit
 def sphere_to_cartesian(latitude, longitude, height=0.0, radius=MEAN_RADIUS):
     """Geocentric position (m) of a point at ``height`` above the sphere of ``radius``.
 
@@ -76,12 +83,14 @@ def sphere_to_cartesian(latitude, longitude, height=0.0, radius=MEAN_RADIUS):
     return direction * distance[..., None]
 
 
+@jax.jit
 def cartesian_to_sphere(position, radius=MEAN_RADIUS):
     """Inverse of :func:`sphere_to_cartesian`: ``(latitude, longitude, height)`` in radians and metres."""
     latitude, longitude = latitude_longitude(position)
     return latitude, longitude, jnp.linalg.norm(jnp.asarray(position, float), axis=-1) - radius
 
 
+@jax.jit
 def geodetic_to_ecef(latitude, longitude, height=0.0, a=WGS84_SEMI_MAJOR_AXIS, f=WGS84_FLATTENING):
     """WGS84 (or any ellipsoid ``a``, ``f``) geodetic coordinates to Earth-centred Earth-fixed (ECEF) metres.
 
@@ -108,6 +117,7 @@ def geodetic_to_ecef(latitude, longitude, height=0.0, a=WGS84_SEMI_MAJOR_AXIS, f
     )
 
 
+@functools.partial(jax.jit, static_argnames="iterations")
 def ecef_to_geodetic(position, a=WGS84_SEMI_MAJOR_AXIS, f=WGS84_FLATTENING, iterations=4):
     """ECEF metres to geodetic latitude, longitude (radians) and ellipsoidal height (m).
 
@@ -141,11 +151,13 @@ def ecef_to_geodetic(position, a=WGS84_SEMI_MAJOR_AXIS, f=WGS84_FLATTENING, iter
     return latitude, longitude, height
 
 
+@jax.jit
 def wrap_angle(angle):
     """Angle (radians) wrapped into (-π, π]."""
     return jnp.pi - jnp.mod(jnp.pi - angle, 2.0 * jnp.pi)
 
 
+@jax.jit
 def great_circle_distance(lat1, lon1, lat2, lon2, radius: ArrayLike = MEAN_RADIUS):
     """Great-circle distance (m) on the sphere between points given in radians (haversine-free, atan2 form)."""
     u1 = unit_vector(lat1, lon1)

@@ -21,6 +21,7 @@ Tests compare every projection with PROJ (pyproj).
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -94,6 +95,7 @@ class TangentPlane(Projection):
         east = jnp.stack([-jnp.sin(self.longitude), jnp.cos(self.longitude), jnp.zeros_like(self.longitude)])
         return east, jnp.cross(up, east), up
 
+    @jax.jit
     def forward(self, latitude, longitude):
         """``(x, y)`` metres in the tangent plane of ``(latitude, longitude)`` radians, each ``(...)``."""
         east, north, up = self._axes()
@@ -102,6 +104,7 @@ class TangentPlane(Projection):
         return (jnp.where(front, self.radius * (g @ east), jnp.nan),
                 jnp.where(front, self.radius * (g @ north), jnp.nan))
 
+    @jax.jit
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of tangent-plane ``(x, y)`` metres; NaN beyond the sphere's disk."""
         east, north, up = self._axes()
@@ -130,6 +133,7 @@ class Equirectangular(Projection):
     reference_longitude: Float[Array, ""] = eqx.field(converter=_as_float)
     radius: Float[Array, ""] = eqx.field(converter=_as_float, default=MEAN_RADIUS)
 
+    @jax.jit
     def forward(self, latitude, longitude):
         """``(x east, y north)`` metres of ``(latitude, longitude)`` radians."""
         x = self.radius * _wrap(_as_float(longitude) - self.reference_longitude) * jnp.cos(self.reference_latitude)
@@ -137,6 +141,7 @@ class Equirectangular(Projection):
         x, y = jnp.broadcast_arrays(x, y)
         return x, y
 
+    @jax.jit
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
         latitude = self.reference_latitude + _as_float(y) / self.radius
@@ -174,15 +179,18 @@ class ImageGrid(eqx.Module):
         """The metric projection of the grid."""
         return Equirectangular(self.reference_latitude, self.reference_longitude, self.radius)
 
+    @jax.jit
     def map_xy(self, latitude, longitude):
         """Metric map coordinates ``(x east, y north)`` relative to the reference point."""
         return self.projection.forward(latitude, longitude)
 
+    @jax.jit
     def forward(self, latitude, longitude):
         """``(pixel, line)`` (fractional, 1-based) of ``(latitude, longitude)`` radians."""
         x, y = self.map_xy(latitude, longitude)
         return self.reference_pixel + x / self.pixel_width, self.reference_line - y / self.pixel_height
 
+    @jax.jit
     def inverse(self, pixel, line):
         """``(latitude, longitude)`` radians of fractional 1-based ``(pixel, line)``."""
         x = (_as_float(pixel) - self.reference_pixel) * self.pixel_width
@@ -232,20 +240,24 @@ class MapGrid(eqx.Module):
     def shape(self) -> tuple[int, int]:
         return self.n_rows, self.n_columns
 
+    @jax.jit
     def xy(self):
         """Map coordinates ``(x, y)`` of every pixel centre, each ``(n_rows, n_columns)`` m."""
         x = self.x_first + self.pixel_width * jnp.arange(self.n_columns, dtype=float)
         y = self.y_first - self.pixel_height * jnp.arange(self.n_rows, dtype=float)
         return jnp.meshgrid(x, y)
 
+    @jax.jit
     def latitude_longitude(self):
         """``(latitude, longitude)`` radians of every pixel centre, each ``(n_rows, n_columns)``."""
         return self.projection.inverse(*self.xy())
 
+    @jax.jit
     def to_xy(self, row, column):
         """Map coordinates (m) of fractional 0-based ``(row, column)``."""
         return (self.x_first + self.pixel_width * _as_float(column), self.y_first - self.pixel_height * _as_float(row))
 
+    @jax.jit
     def to_pixel(self, x, y):
         """Fractional 0-based ``(row, column)`` of map coordinates (m)."""
         return (self.y_first - _as_float(y)) / self.pixel_height, (_as_float(x) - self.x_first) / self.pixel_width
@@ -311,6 +323,7 @@ class LambertConformalConic(Projection):
         rho0 = self.semi_major_axis * big_f * _t(self.origin_latitude, e) ** n
         return e, n, big_f, rho0
 
+    @jax.jit
     def forward(self, latitude, longitude):
         """``(x, y)`` metres of ``(latitude, longitude)`` radians."""
         e, n, big_f, rho0 = self._constants()
@@ -321,6 +334,7 @@ class LambertConformalConic(Projection):
         x, y = jnp.broadcast_arrays(x, y)
         return x, y
 
+    @jax.jit
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
         e, n, big_f, rho0 = self._constants()
@@ -380,6 +394,7 @@ class PolarStereographic(Projection):
         k_pole = 2.0 * self.semi_major_axis / jnp.sqrt((1.0 + e) ** (1.0 + e) * (1.0 - e) ** (1.0 - e))
         return e, hemisphere, jnp.where(at_pole, k_pole, k_parallel)
 
+    @jax.jit
     def forward(self, latitude, longitude):
         """``(x, y)`` metres of ``(latitude, longitude)`` radians."""
         e, hemisphere, k = self._constants()
@@ -390,6 +405,7 @@ class PolarStereographic(Projection):
         x, y = jnp.broadcast_arrays(x, y)
         return x, y
 
+    @jax.jit
     def inverse(self, x, y):
         """``(latitude, longitude)`` radians of ``(x, y)`` metres."""
         e, hemisphere, k = self._constants()

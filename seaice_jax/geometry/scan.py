@@ -17,6 +17,7 @@ With the parameters printed in Figure 3-3 of source 001 and T_e = 1440 min this 
 deviations to about 1 arc minute (tests/test_scan.py).
 """
 
+import functools
 from typing import Literal
 
 import equinox as eqx
@@ -106,6 +107,7 @@ class Orbit(eqx.Module):
         """T_s / T_e: Earth rotation (radians of longitude) per radian of orbital angle."""
         return self.period / self.earth_day
 
+    @jax.jit
     def central_angle(self, scanner_angle):
         """Earth-central cross-track angle β from the scanner angle ψ: β = asin((R+H)/R sin ψ) − ψ (ψ if H = 0).
 
@@ -117,6 +119,7 @@ class Orbit(eqx.Module):
         beta = jnp.arcsin(jnp.where(hits, sine, 0.0)) - scanner_angle
         return jnp.where(hits, jnp.where(self.altitude > 0, beta, scanner_angle), jnp.nan)
 
+    @jax.jit
     def scanner_angle_from_central(self, central_angle):
         """Inverse of :meth:`central_angle`: tan ψ = sin β / ((R+H)/R − cos β) (ψ = β if H = 0)."""
         ratio = (self.radius + self.altitude) / self.radius
@@ -232,10 +235,12 @@ class ScanModel(eqx.Module):
         """Orbital angle η_N at the last scan line, radians."""
         return self.orbital_angle(float(self.n_scans))
 
+    @jax.jit
     def scanner_angle(self, pixel):
         """Scanner angle ψ (radians) at fractional 1-based ``pixel``: span · (p_s − p)/(N_p − 1)."""
         return self.scanner_angle_span * (self.subtrack_pixel - jnp.asarray(pixel, float)) / (self.n_pixels - 1)
 
+    @jax.jit
     def orbital_angle(self, scan):
         """Orbital angle η (radians from the ascending node) at fractional 1-based scan line ``scan``."""
         fraction = (jnp.asarray(scan, float) - 1.0) / (self.n_scans - 1)
@@ -255,12 +260,13 @@ class ScanModel(eqx.Module):
         """
         if is_traced(self, pixel, scan):
             return self.forward_unchecked(pixel, scan)
-        # eager: one compiled function per shape for both directions (its operations one by one would each compile)
+        # eager: described southbound, both directions share one compiled program per shape
         southbound = self if self.direction == "south" else self.reversed()
-        latitude, longitude = _forward(southbound, jnp.asarray(pixel, float), jnp.asarray(scan, float))
+        latitude, longitude = southbound.forward_unchecked(pixel, scan)
         raise_where_nan(latitude, "pixel", "the scanner's line of sight misses the Earth")
         return latitude, longitude
 
+    @jax.jit
     def forward_unchecked(self, pixel, scan):
         """:meth:`forward` without the check: NaN where the line of sight misses the Earth (for simulations that
         mask such pixels themselves)."""
@@ -284,10 +290,14 @@ class ScanModel(eqx.Module):
         Returns:
             ``(pixel, scan)``, each ``(...)``.
         """
-        latitude = jnp.asarray(latitude, float)
-        if not is_traced(latitude) and bool(jnp.any(jnp.abs(latitude) > jnp.pi / 2)):
+        if not is_traced(latitude) and np.any(np.abs(np.asarray(latitude, float)) > np.pi / 2):
             raise ValueError("latitude out of range [-90°, 90°] at index "
-                             f"{jnp.argwhere(jnp.abs(latitude) > jnp.pi / 2).tolist()[:10]}")
+                             f"{np.argwhere(np.abs(np.asarray(latitude, float)) > np.pi / 2).tolist()[:10]}")
+        return self._inverse(latitude, longitude, iterations)
+
+    @functools.partial(jax.jit, static_argnames="iterations")
+    def _inverse(self, latitude, longitude, iterations):
+        latitude = jnp.asarray(latitude, float)
         eta, beta = orbit_coordinates(self.orbit, self.ascending_node, latitude, longitude,
                                       self.orbital_angle(0.5 * (1.0 + self.n_scans)), iterations)
         psi = self.orbit.scanner_angle_from_central(beta)
@@ -297,15 +307,15 @@ class ScanModel(eqx.Module):
         )
         return pixel, scan
 
+    @jax.jit
     def carried_to(self, target: "ScanModel", pixel, scan):
         """``(pixel, scan)`` in ``target``'s image of the ground this model sees at ``pixel``, ``scan`` (``(...)``):
         ``target.inverse`` of :meth:`forward_unchecked` (NaN where the line of sight misses the Earth)."""
         return target.inverse(*self.forward_unchecked(pixel, scan))
 
 
-_forward = jax.jit(ScanModel.forward_unchecked)
 
-
+@functools.partial(jax.jit, static_argnames="iterations")
 def orbit_coordinates(orbit: Orbit, ascending_node, latitude, longitude, orbital_angle_reference, iterations=8):
     """Orbital angle η and Earth-central cross-track angle β of ground points, for an orbit and node.
 

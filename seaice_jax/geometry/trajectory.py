@@ -9,6 +9,7 @@ flight, or a circular orbit ignoring Earth rotation).
 import abc
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -59,6 +60,7 @@ class CircularTrajectory(Trajectory):
         orbit_radius = jnp.asarray(radius + altitude, float)
         return cls(up, forward, orbit_radius, jnp.asarray(speed, float) / orbit_radius, jnp.asarray(epoch, float))
 
+    @jax.jit
     def __call__(self, time):
         """Position ``(..., 3)`` m and velocity ``(..., 3)`` m/s at ``time`` ``(...)`` seconds."""
         angle = (jnp.asarray(time, float) - self.epoch) * self.angular_rate

@@ -220,7 +220,9 @@ def geographic_bounds(lat, lon) -> dict:
     longitude and the pole's latitude."""
     lat, lon = (np.asarray(a, float).ravel() for a in (lat, lon))
     keep = np.isfinite(lat) & np.isfinite(lon)
-    lat, lon = lat[keep], np.sort((lon[keep] + 180.0) % 360.0 - 180.0)
+    lat, lon = lat[keep], lon[keep]
+    # into [-180, 180), leaving longitudes already there bit for bit (the bounds are the data's own values)
+    lon = np.sort(np.where((lon < -180.0) | (lon >= 180.0), (lon + 180.0) % 360.0 - 180.0, lon))
     gaps = np.diff(np.append(lon, lon[0] + 360.0))
     k = int(np.argmax(gaps))
     south, north = float(lat.min()), float(lat.max())

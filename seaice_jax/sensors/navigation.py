@@ -54,6 +54,7 @@ class NavigationSpline(Trajectory):
                               f"(previous {float(times[bad - 1])} s)")
         self.times, self.positions, self.velocities = (jnp.asarray(a) for a in (times, positions, velocities))
 
+    @jax.jit
     def __call__(self, time):
         """Position ``(..., 3)`` m and velocity ``(..., 3)`` m/s at ``time`` ``(...)`` s (extrapolates the end
         intervals' cubics outside the record span)."""
@@ -225,6 +226,7 @@ class ConstantError(eqx.Module):
 
     offset: Float[Array, " k"]
 
+    @jax.jit
     def __call__(self, time):
         time = jnp.asarray(time, float)
         return jnp.broadcast_to(self.offset, time.shape + self.offset.shape)
@@ -237,6 +239,7 @@ class LinearError(eqx.Module):
     rate: Float[Array, " k"]
     epoch: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=0.0)
 
+    @jax.jit
     def __call__(self, time):
         dt = jnp.asarray(time, float) - self.epoch
         return _scaled(jnp.ones_like(dt), self.offset) + _scaled(dt, self.rate)
@@ -252,6 +255,7 @@ class SchulerError(eqx.Module):
     epoch: Float[Array, ""] = eqx.field(converter=lambda x: jnp.asarray(x, float), default=0.0)
     period: float = eqx.field(static=True, default=SCHULER_PERIOD)
 
+    @jax.jit
     def __call__(self, time):
         dt = jnp.asarray(time, float) - self.epoch
         phase = 2.0 * jnp.pi / self.period * dt
@@ -277,6 +281,7 @@ class SplineError(eqx.Module):
         """A zero spline covering [start, end] with knots every ``spacing`` seconds."""
         return cls(jnp.zeros((_spline_pieces(start, end, spacing) + 3, components)), start, spacing)
 
+    @jax.jit
     def __call__(self, time):
         position = (jnp.asarray(time, float) - self.start) / self.spacing
         pieces = self.coefficients.shape[0] - 3

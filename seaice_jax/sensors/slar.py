@@ -9,6 +9,7 @@ returns, whose slant range must equal the altimeter's height over the ice, calib
 from dataclasses import dataclass
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -55,12 +56,14 @@ class ImageFrame(eqx.Module):
         origin = reference - direction * (direction @ (reference - marks[0]))
         return cls(jnp.asarray(origin), jnp.asarray(direction), jnp.asarray(normal))
 
+    @jax.jit
     def to_image(self, x_comparator, y_comparator):
         """``(x, y)`` image coordinates of comparator points (same units, e.g. mm on the film)."""
         dx = jnp.asarray(x_comparator, float) - self.origin[0]
         dy = jnp.asarray(y_comparator, float) - self.origin[1]
         return dx * self.x_axis[0] + dy * self.x_axis[1], dx * self.y_axis[0] + dy * self.y_axis[1]
 
+    @jax.jit
     def to_comparator(self, x, y):
         """``(x', y')`` comparator coordinates of image points (the inverse of :meth:`to_image`)."""
         x, y = jnp.asarray(x, float), jnp.asarray(y, float)

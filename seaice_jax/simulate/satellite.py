@@ -95,6 +95,7 @@ def _waves(rng, count, shortest, longest):
         amplitude * np.sqrt(2.0 / np.sum(amplitude**2)))
 
 
+@jax.jit
 def _field(waves, xi):
     """Sum of plane waves at points ``xi (..., 2)`` m: a smooth random field of unit RMS."""
     vectors, phases, amplitudes = waves
@@ -304,6 +305,7 @@ class CameraDistortion(eqx.Module):
         rows = int(round(n_scans * (1 + margin)))
         return cls(radial, aspect, rows, int(round(n_pixels * (1 + margin) * aspect)), n_pixels, n_scans)
 
+    @jax.jit
     def to_image(self, u, v):
         """Image ``(pixel, scan)`` (1-based) seen at frame ``(u, v)`` (1-based column, row)."""
         uc, vc = 0.5 * (1 + self.frame_columns), 0.5 * (1 + self.frame_rows)
