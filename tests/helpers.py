@@ -29,9 +29,10 @@ def assert_jacobian_matches(function, x, rtol=1e-6, atol_scale=1e-9, **steps):
     error to speak of).
     """
     x = np.asarray(x, float)
-    numeric = central_difference_jacobian(lambda v: np.asarray(function(v)), x, **steps)
-    forward = np.asarray(jax.jacfwd(function)(x))
-    reverse = np.asarray(jax.jacrev(function)(x))
+    compiled = jax.jit(function)  # one program, not one per operation (each would compile on its own)
+    numeric = central_difference_jacobian(lambda v: np.asarray(compiled(v)), x, **steps)
+    forward = np.asarray(jax.jit(jax.jacfwd(function))(x))
+    reverse = np.asarray(jax.jit(jax.jacrev(function))(x))
     atol = atol_scale * np.max(np.abs(numeric))
     np.testing.assert_allclose(forward, numeric, rtol=rtol, atol=atol)
     np.testing.assert_allclose(reverse, forward, rtol=1e-12, atol=1e-12 * np.max(np.abs(forward)))
