@@ -335,24 +335,27 @@ def _loop(problem: Problem, options: EngineOptions, state, trial, proposal):
     """Iterate from ``state`` (nothing linearized yet: the start is the pending trial) until it ends or has taken
     ``max_steps`` steps, an iteration being one trial (a linearization) and one proposal (a factorization).
 
-    The compiled loop evaluates the pending trial, then proposes the next step from the estimates kept: one
-    linearization in it. Where the dense backend rotates by Jacobi (vmapped batches of small fits), the start's
-    linearization, its factorization and the first trial run before the loop, and the loop proposes before it
-    evaluates: under ``vmap``, lanes that share the start and the model (a Monte Carlo of the observations) share
-    the start's Jacobian, so its factorization is computed once for all of them, and no lane factors again after
-    its last trial."""
-    if options.backend == "dense" and dense.uses_jacobi(options.factorization, problem.unknowns):
+    The compiled loop evaluates the pending trial, then, unless that ended it, proposes the next step from the
+    estimates kept: one linearization in it. Where the dense backend rotates by Jacobi (vmapped batches of small
+    fits), the start's linearization, its factorization and the first trial run before the loop, and the loop
+    proposes before it evaluates: under ``vmap``, lanes that share the start and the model (a Monte Carlo of the
+    observations) share the start's Jacobian, so its factorization is computed once for all of them, and no lane
+    factors again after its last trial."""
+    jacobi = options.backend == "dense" and dense.uses_jacobi(options.factorization, problem.unknowns)
+    if jacobi:
         # the start taken as it is, not through the trial's choice between kept and trial linearization: that
         # choice depends on each lane's residuals and would make the shared Jacobian a per-lane one
         linear = linearize_all(problem, problem.start, problem.points)
         state = trial(proposal(state._replace(linear=linear, started=jnp.ones((), bool),
                                               ended=~jnp.isfinite(_square_sum(linear)))))
 
-        def body(state):
+    def body(state):
+        if jacobi:
             return trial(proposal(state))
-    else:
-        def body(state):
-            return proposal(trial(state))
+        state = trial(state)
+        # no proposal after the trial that ends the loop: one factorization saved per solve (under vmap, where the
+        # condition differs by lane, both branches run)
+        return jax.lax.cond(state.ended, lambda ended: ended, proposal, state)
 
     return jax.lax.while_loop(lambda s: ~s.ended & ((s.steps < options.max_steps) | ~s.started), body, state)
 
