@@ -404,11 +404,13 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
                               small=small, scale=scale, rotation=rotation)
 
     # Moré's scaling: the damping measures the step by the largest column norms seen so far
-    n, no = problem.start.shape[0], jnp.zeros((), bool)
-    start = _Damped(problem.start, problem.points, unlinearized(problem), no, jnp.zeros(n),
-                    jnp.zeros(problem.points.shape), jnp.zeros(()), jnp.zeros(()), no,
-                    jnp.full((), options.initial_damping), jnp.full((), 2.0), jnp.zeros(problem.unknowns),
-                    jnp.eye(problem.unknowns if options.backend == "dense" else 0), jnp.zeros((), int), no, no)
+    no, zero = jnp.zeros((), bool), jnp.zeros(())
+    start = _Damped(theta=problem.start, points=problem.points, linear=unlinearized(problem), started=no,
+                    step_theta=jnp.zeros_like(problem.start), step_points=jnp.zeros_like(problem.points), gain=zero,
+                    gauss_newton=zero, small=no, damping=jnp.full((), options.initial_damping),
+                    growth=jnp.full((), 2.0), scale=jnp.zeros(problem.unknowns),
+                    rotation=jnp.eye(problem.unknowns if options.backend == "dense" else 0),
+                    steps=jnp.zeros((), int), ended=no, converged=no)
     end = _loop(problem, options, start, trial, proposal)
     return end.theta, end.points, end.linear, end.rotation, end.steps, end.converged
 
@@ -457,9 +459,10 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
             radius=radius, scale=scale, rotation=factors.vt.T)
 
     no, zero = jnp.zeros((), bool), jnp.zeros(())
-    start = _Region(jnp.concatenate([problem.start, problem.points.reshape(-1)]), unlinearized(problem), no,
-                    jnp.zeros(problem.unknowns), zero, zero, zero, no, jnp.ones(()), jnp.zeros(problem.unknowns),
-                    jnp.eye(problem.unknowns), jnp.zeros((), int), no, no)
+    start = _Region(x=jnp.concatenate([problem.start, problem.points.reshape(-1)]), linear=unlinearized(problem),
+                    started=no, step=jnp.zeros(problem.unknowns), norm=zero, damping=zero, gain=zero, small=no,
+                    radius=jnp.ones(()), scale=jnp.zeros(problem.unknowns), rotation=jnp.eye(problem.unknowns),
+                    steps=jnp.zeros((), int), ended=no, converged=no)
     end = _loop(problem, options, start, trial, proposal)
     return *unpacked(end.x), end.linear, end.rotation, end.steps, end.converged
 

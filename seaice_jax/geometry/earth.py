@@ -71,6 +71,7 @@ def north_east(position):
                        jnp.cos(latitude)], axis=-1)
     return north, east
 
+
 @jax.jit
 def sphere_to_cartesian(latitude, longitude, height=0.0, radius=MEAN_RADIUS):
     """Geocentric position (m) of a point at ``height`` above the sphere of ``radius``.

@@ -290,9 +290,10 @@ class ScanModel(eqx.Module):
         Returns:
             ``(pixel, scan)``, each ``(...)``.
         """
-        if not is_traced(latitude) and np.any(np.abs(np.asarray(latitude, float)) > np.pi / 2):
-            raise ValueError("latitude out of range [-90°, 90°] at index "
-                             f"{np.argwhere(np.abs(np.asarray(latitude, float)) > np.pi / 2).tolist()[:10]}")
+        if not is_traced(latitude):
+            beyond = np.abs(np.asarray(latitude, float)) > np.pi / 2
+            if np.any(beyond):
+                raise ValueError(f"latitude out of range [-90°, 90°] at index {np.argwhere(beyond).tolist()[:10]}")
         return self._inverse(latitude, longitude, iterations)
 
     @functools.partial(jax.jit, static_argnames="iterations")
@@ -312,7 +313,6 @@ class ScanModel(eqx.Module):
         """``(pixel, scan)`` in ``target``'s image of the ground this model sees at ``pixel``, ``scan`` (``(...)``):
         ``target.inverse`` of :meth:`forward_unchecked` (NaN where the line of sight misses the Earth)."""
         return target.inverse(*self.forward_unchecked(pixel, scan))
-
 
 
 @functools.partial(jax.jit, static_argnames="iterations")
