@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow lint typecheck bench clean
+.PHONY: demo test test-xla-defaults test-slow lint typecheck bench clean
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "seaice_jax needs Python 3.11 or newer")'
@@ -22,6 +22,13 @@ TEST_WORKERS ?= auto
 
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile --durations=15
+
+# The numerical core again with XLA's default CPU code generation (the suite compiles with XLA's classic emitters,
+# the faster to compile: tests/conftest.py). In .ci/run.
+CORE_TESTS := tests/test_engine.py tests/test_lsq.py tests/test_nist.py tests/test_range_doppler.py tests/test_scan.py
+
+test-xla-defaults: $(STAMP)
+	XLA_FLAGS= OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile $(CORE_TESTS)
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow --durations=15

@@ -297,8 +297,8 @@ def test_sharded_realizations_equal_unsharded_on_two_host_devices(tmp_path):
     gets 4 threads (NPROC): two devices run their batched LAPACK kernels at once, and on a pool of fewer threads
     than kernels plus one each waits for ever (the deadlock of seaice_jax._small_linalg's note)."""
     out = tmp_path / "results.npz"
-    environment = {**os.environ, "NPROC": "4",
-                   "XLA_FLAGS": "--xla_force_host_platform_device_count=2 --xla_cpu_multi_thread_eigen=false"}
+    flags = "--xla_force_host_platform_device_count=2 --xla_cpu_multi_thread_eigen=false"
+    environment = {**os.environ, "NPROC": "4", "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {flags}"}
     subprocess.run([sys.executable, "-c", _SHARDED, str(out)], env=environment, check=True, timeout=400)
     with np.load(out) as results:
         linear, split, sharded, unsharded = (results[k] for k in ("linear", "split", "sharded", "unsharded"))
