@@ -1,4 +1,5 @@
-"""Shared test tools: central finite differences as the independent check of autodiff Jacobians; a tie table."""
+"""Shared test tools: central finite differences as the independent check of autodiff Jacobians; a tie table; a
+vmapped batch of orbit fits."""
 
 import jax
 import numpy as np
@@ -36,6 +37,18 @@ def assert_jacobian_matches(function, x, rtol=1e-6, atol_scale=1e-9, **steps):
     atol = atol_scale * np.max(np.abs(numeric))
     np.testing.assert_allclose(forward, numeric, rtol=rtol, atol=atol)
     np.testing.assert_allclose(reverse, forward, rtol=1e-12, atol=1e-12 * np.max(np.abs(forward)))
+
+
+FIT_LANES = 40
+"""Realizations per call of :func:`vmapped_fits` in the tests: batches of one control layout and this many lanes share
+one compiled program across test files (the session's persistent compilation cache serves the other processes)."""
+
+
+@jax.jit
+def vmapped_fits(solver, args, lats, lons):
+    """An orbit solver (:func:`~seaice_jax.adjust.orbit_fit.orbit_solver`) vmapped over realizations ``(runs, n)`` of
+    the known latitudes and longitudes (compiled once per solver structure and number of realizations)."""
+    return jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args))(lats, lons)
 
 
 def lattice_ties(models, latitude, longitude, size, sigma_pixel, sigma_scan):

@@ -18,6 +18,7 @@ from seaice_jax.errors import RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import SOLAR_DAY
 from seaice_jax.geometry.scan import Orbit
 from seaice_jax.simulate.satellite import noaa_image, perturb_known_positions, simulate_control_points
+from tests.helpers import FIT_LANES, vmapped_fits
 
 DEG = np.pi / 180
 
@@ -99,8 +100,10 @@ def test_monte_carlo_scatter_matches_predicted_sigma():
     solver = orbit_solver(control, truth)
     noisy_lat, noisy_lon = perturb_known_positions(lat, lon, 1500.0, rng, runs)
     args = control_args(ControlPoints(control.pixel, control.scan, lat, lon, 1500.0, control.ids))
-    solve = jax.jit(jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args)))
-    results = solve(jnp.asarray(noisy_lat), jnp.asarray(noisy_lon))
+    # in batches of the lanes the other tests' fits take: one compiled batch for all of them
+    chunks = [vmapped_fits(solver, args, jnp.asarray(noisy_lat[k:k + FIT_LANES]),
+                           jnp.asarray(noisy_lon[k:k + FIT_LANES])) for k in range(0, runs, FIT_LANES)]
+    results = jax.tree_util.tree_map(lambda *parts: jnp.concatenate(parts), *chunks)
     assert bool(jnp.all(results.converged))
     names = solver.parameter_names
     estimates = np.stack([np.asarray(getattr(results.parameters, n)) for n in names], 1)
@@ -195,22 +198,15 @@ def noisy_batch():
     rng = np.random.default_rng(18)
     control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
     solver = orbit_solver(control, fit_scan_model(control, truth.orbit, direction="south").model)
-    lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, 40)
+    lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, FIT_LANES)
     return solver, control_args(control), jnp.asarray(lats), jnp.asarray(lons)
-
-
-@jax.jit
-def _batch(solver, args, lats, lons):
-    """The solver vmapped over realizations of the known positions (one compilation per solver structure: the tests
-    of this module with 7 control points and 40 realizations share it)."""
-    return jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args))(lats, lons)
 
 
 def test_vmapped_fits_equal_the_single_fits(noisy_batch):
     """A lane of the vmapped solver is the single solver on the same data: the estimates equal to 1e-6 of their σ
     and the covariances to 1e-9 (the converged lanes keep their state while the others iterate)."""
     solver, args, lats, lons = noisy_batch
-    batch = _batch(solver, args, lats, lons)
+    batch = vmapped_fits(solver, args, lats, lons)
     single = jax.jit(lambda a, b: solver({"latitude": a, "longitude": b}, args))
     for k in range(0, lats.shape[0], 4):
         one = single(lats[k], lons[k])
@@ -226,7 +222,7 @@ def test_rounding_of_the_square_sum_does_not_start_the_damping(noisy_batch):
     Gauss-Newton step within it is taken, not refused and damped for ten more steps. Every fit ends at a
     stationary point (the gradient Jᵀe at rounding level) within a few steps."""
     solver, args, lats, lons = noisy_batch
-    batch = _batch(solver, args, lats, lons)
+    batch = vmapped_fits(solver, args, lats, lons)
     assert bool(jnp.all(batch.converged))
     assert int(jnp.max(batch.steps)) <= 6
     for k in range(0, lats.shape[0], 8):
@@ -247,8 +243,8 @@ def test_the_fits_stop_within_a_billionth_of_sigma_of_the_minimum():
     rng = np.random.default_rng(7)
     control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
     start = initial_guess(control, truth.orbit, "south")
-    lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, 40))
-    stopped, strict = (_batch(orbit_solver(control, start, decrease_tolerance=tolerance), control_args(control),
+    lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, FIT_LANES))
+    stopped, strict = (vmapped_fits(orbit_solver(control, start, decrease_tolerance=tolerance), control_args(control),
                               lats, lons) for tolerance in (DECREASE_TOLERANCE, 1e-12))
     assert bool(jnp.all(stopped.converged)) and bool(jnp.all(strict.converged))
     assert int(jnp.max(stopped.steps)) <= int(jnp.max(strict.steps))
