@@ -4,11 +4,15 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
+from seaice_jax.adjust.lsq import least_squares
 from seaice_jax.adjust.orbit_fit import (
     DECREASE_TOLERANCE,
     ControlPoints,
+    _observations,
+    _predict,
     control_args,
     fit_scan_model,
+    free_mask,
     initial_guess,
     orbit_solver,
     position_uncertainty,
@@ -252,6 +256,31 @@ def test_the_fits_stop_within_a_billionth_of_sigma_of_the_minimum():
     for i, name in enumerate(strict.parameter_names):
         difference = np.asarray(getattr(stopped.parameters, name)) - np.asarray(getattr(strict.parameters, name))
         assert np.max(np.abs(difference) / sigma[:, i]) <= 1e-8, name
+
+
+def test_padding_the_control_points_changes_no_result():
+    """The fit pads its 6 control points to 8 rows (σ = ∞: no observation, one compiled fit for 5-8 points); its
+    adjustment is the one set up on the 6 points alone: estimates, covariance, σ̂0, degrees of freedom, and each
+    point's residual, redundancy number, w-statistic, MDB and w-partner."""
+    truth = noaa_image("south")
+    control, _, _ = simulate_control_points(truth, 6, np.random.default_rng(9), 800.0)
+    fit = fit_scan_model(control, truth.orbit, direction="south").adjustment
+    start = initial_guess(control, truth.orbit, "south")
+    alone = least_squares(_predict, start, _observations(control, truth.orbit.radius), args=control_args(control),
+                          free=free_mask(start), decrease_tolerance=DECREASE_TOLERANCE)
+    assert fit is not None and fit.degrees_of_freedom == alone.degrees_of_freedom == 2 * 6 - 5
+    sigma = np.sqrt(np.diag(np.asarray(alone.covariance)))
+    for i, name in enumerate(alone.parameter_names):
+        assert abs(float(getattr(fit.parameters, name)) - float(getattr(alone.parameters, name))) < 1e-9 * sigma[i]
+    np.testing.assert_allclose(fit.covariance, alone.covariance, rtol=1e-9)
+    assert float(fit.sigma0) == pytest.approx(float(alone.sigma0), rel=1e-9)
+    for table in ("residuals", "redundancy", "standardized_residuals", "minimal_detectable_bias", "w_correlation"):
+        for group in ("latitude", "longitude"):
+            ours, theirs = (np.asarray(getattr(a, table)[group]) for a in (fit, alone))
+            assert ours.shape == (6,)
+            np.testing.assert_allclose(ours, theirs, rtol=1e-7, atol=1e-12 * np.max(np.abs(theirs)))
+    for group in ("latitude", "longitude"):
+        np.testing.assert_array_equal(fit.w_partner[group], alone.w_partner[group])
 
 
 def test_northbound_fit_is_the_direct_northbound_adjustment():

@@ -37,6 +37,7 @@ from seaice_jax.adjust import dense, schur, trust_region
 from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, unlinearized
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
 from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry._checks import is_traced
 
 BACKENDS = ("dense", "schur")
 FACTORIZATIONS = dense.FACTORIZATIONS
@@ -159,7 +160,8 @@ class Adjustment(eqx.Module):
         covariance: ``(n, n)`` σ̂0² · cofactor.
         point_cofactor: ``(P, d, d)`` the points' cofactor blocks; point_pair_cofactor: ``(R, d, d)`` the
             requested cross blocks between two points.
-        sigma0: σ̂0 = √(vᵀPv / r) (NaN when r = 0). degrees_of_freedom: r.
+        sigma0: σ̂0 = √(vᵀPv / r) (NaN when r = 0). degrees_of_freedom: r (``None`` from a solve under ``jit``
+            whose r was traced; :class:`~seaice_jax.adjust.lsq.Solver` sets it on the way out).
         residuals, redundancy, standardized_residuals, minimal_detectable_bias, estimated_errors: ``{group: …}``
             per observation (computed − observed residuals in observation units; redundancy numbers; w; MDB;
             −v/r).
@@ -179,7 +181,7 @@ class Adjustment(eqx.Module):
     cofactor: Float[Array, "n n"]
     covariance: Float[Array, "n n"]
     sigma0: Float[Array, ""]
-    degrees_of_freedom: int = eqx.field(static=True)
+    degrees_of_freedom: int | None = eqx.field(static=True)
     residuals: dict
     redundancy: dict
     standardized_residuals: dict
@@ -544,7 +546,7 @@ def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
 
 
 def solve(problem: Problem, options: EngineOptions | None = None, names=(), cross_points=None, layout=None,
-          dof: int | None = None) -> Adjustment:
+          dof: int | Array | None = None) -> Adjustment:
     """Adjust ``problem`` (eager or under ``jit``/``vmap`` with ``layout`` and ``dof`` given).
 
     Args:
@@ -554,18 +556,20 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
             two dates, for its drift).
         layout: the Schur backend's tables (:func:`~seaice_jax.adjust.schur.schur_layout`), built here if
             ``None`` (that needs concrete point indices: build it outside ``vmap``).
-        dof: degrees of freedom (counted here if ``None``, which needs concrete σ).
+        dof: degrees of freedom (counted here if ``None``, which needs concrete σ); traced, it leaves the result's
+            ``degrees_of_freedom`` ``None``.
     """
     options = options or EngineOptions()
     cross_points = np.zeros((0, 2), int) if cross_points is None else np.asarray(cross_points, int).reshape(-1, 2)
     if layout is None:
         layout = schur.schur_layout(problem, cross_points) if options.backend == "schur" else None
-    dof = degrees_of_freedom(problem) if dof is None else int(dof)
+    dof = degrees_of_freedom(problem) if dof is None else dof
     # padded to a bucket, so problems differing only in the number of requested pairs share one compile
     requested = pad(cross_points, bucket(cross_points.shape[0]), -1)
     result = _solve(problem, layout, jnp.asarray(requested), options, jnp.asarray(dof, float))
     fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
-    return Adjustment(**(fields | {"parameter_names": tuple(names), "degrees_of_freedom": dof,
+    return Adjustment(**(fields | {"parameter_names": tuple(names),
+                                   "degrees_of_freedom": None if is_traced(dof) else int(dof),
                                    "point_pair_cofactor": result.point_pair_cofactor[:cross_points.shape[0]]}))
 
 

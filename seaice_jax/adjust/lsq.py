@@ -15,6 +15,7 @@ batches of images). Solvers are compiled once per structure (model, parameter sh
 the same shape compiles nothing.
 """
 
+import dataclasses
 import functools
 from collections.abc import Callable, Mapping
 
@@ -91,17 +92,17 @@ class Solver(eqx.Module):
     """A set-up adjustment (from :func:`make_solver`): call it with observed values to adjust.
 
     A pytree (its arrays are leaves, its structure static): the call is one compiled function per structure, so a
-    second solver of the same structure (other values of the fixed parameters, of σ) compiles nothing.
+    second solver of the same structure (other values of the fixed parameters, of σ, of the degrees of freedom:
+    rows of σ = ∞ are padding) compiles nothing.
 
     Attributes:
         parameter_names: names of the free scalar unknowns.
-        degrees_of_freedom: observations + priors − unknowns.
         start: ``(u,)`` the free unknowns' initial values.
     """
 
     parameter_names: tuple = eqx.field(static=True)
-    degrees_of_freedom: int = eqx.field(static=True)
     start: Float[Array, " u"]
+    _dof: Array
     _functions: tuple = eqx.field(static=True)
     _free: tuple = eqx.field(static=True)
     _fixed_part: PyTree
@@ -117,7 +118,7 @@ class Solver(eqx.Module):
         self._functions = functions
         self._free = (jax.tree_util.tree_structure(free), tuple(jax.tree_util.tree_leaves(free)))
         self._groups, self._sigmas, self._prior = groups, sigmas, prior
-        self.parameter_names, self.degrees_of_freedom, self.start = names, dof, start
+        self.parameter_names, self._dof, self.start = names, jnp.asarray(dof), start
         self._options = options
         sizes = [int(np.size(sigmas[g])) for g in groups]
         self._splits = tuple(int(k) for k in np.cumsum(sizes)[:-1])
@@ -130,6 +131,11 @@ class Solver(eqx.Module):
         engine_order = [(g, i) for g in groups for i in range(sizes_by_key[g])] + [
             ("prior", i) for i in range(sizes_by_key["prior"])]
         self._partner_map = np.array([offsets[g] + i for g, i in engine_order] + [-1], int)
+
+    @property
+    def degrees_of_freedom(self) -> int:
+        """Observations (rows of finite σ) + priors − unknowns (host side: not of a solver traced under ``jit``)."""
+        return int(self._dof)
 
     def problem(self, observed, args=None, start=None) -> Problem:
         """The engine's :class:`~seaice_jax.adjust.problem.Problem` for these observed values."""
@@ -155,11 +161,12 @@ class Solver(eqx.Module):
 
     def __call__(self, observed, args=None, start=None) -> Adjustment:
         """Adjust to ``observed`` (``{group: values}``), from ``start`` (a parameter pytree) or the initial values."""
-        return _adjust(self, observed, args, start)
+        result = _adjust(self, observed, args, start)
+        return result if is_traced(self._dof) else dataclasses.replace(result, degrees_of_freedom=int(self._dof))
 
     def _run(self, observed, args, start) -> Adjustment:
         result = engine.solve(self.problem(observed, args, start), self._options, self.parameter_names,
-                              layout=None, dof=self.degrees_of_freedom)
+                              layout=None, dof=self._dof)
         return self._by_group(result)
 
     def _by_group(self, result: Adjustment) -> Adjustment:
@@ -229,7 +236,8 @@ def make_solver(
         model: ``model(parameters, args) -> {group: predicted values}``, one entry per observation group, each
             shaped like that group's values.
         parameters: initial values (any pytree of float arrays, e.g. an ``eqx.Module``).
-        observations: ``{group: Observations}``; only their σ and shapes are used here.
+        observations: ``{group: Observations}``; only their σ and shapes are used here. A row of σ = ∞ is no
+            observation (padding: the same solver serves problems padded to one size, see :mod:`.orbit_fit`).
         free: pytree of bools like ``parameters`` (``True`` = estimated); default all free.
         prior_sigma: pytree like ``parameters`` of prior standard deviations (``inf`` or ``None`` leaves for
             none); priors are pseudo-observations of the free unknowns.
@@ -262,7 +270,7 @@ def make_solver(
         prior_sigma_vector = sigma_vector[prior_index]
         reference = parameters if prior_value is None else prior_value
         prior_vector = ravel_pytree(eqx.partition(reference, free)[0])[0][prior_index]
-    n_observations = sum(int(np.size(sigmas[g])) for g in groups)
+    n_observations = sum(int(np.isfinite(np.asarray(sigmas[g])).sum()) for g in groups)  # σ = ∞: padding
     dof = n_observations + prior_index.size - x0.size
     free_leaves, free_def = jax.tree_util.tree_flatten(free_part)
     fixed_def = jax.tree_util.tree_structure(fixed_part)

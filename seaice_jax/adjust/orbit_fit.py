@@ -13,6 +13,7 @@ Two methods:
 as the 1985 operators did by hand ("order of magnitude differences in the control point errors").
 """
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -21,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust.appendix_c import appendix_c_search
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
@@ -74,6 +76,47 @@ def _observations(control: ControlPoints, radius):
         "latitude": Observations(latitude, sigma / radius),
         "longitude": Observations(control.longitude, sigma / (radius * np.cos(latitude))),
     }
+
+
+def _padded_columns(control: ControlPoints):
+    """``(pixel, scan, latitude, longitude, sigma)`` of the control points (NumPy) padded to :func:`bucket` rows by
+    copies of the first point with σ = ∞ (no observation), so that images with 5-8 points share one compiled fit,
+    9-16 another, ... (``seaice remap`` fits every image of a sequence, each with its own number of points)."""
+    rows = bucket(len(control))
+
+    def padded(values, fill=None):
+        values = np.asarray(values, float)
+        return pad(values, rows, values[0] if fill is None else fill)
+
+    return (padded(control.pixel), padded(control.scan), padded(control.latitude), padded(control.longitude),
+            padded(control.sigma, np.inf))
+
+
+def _padded(control: ControlPoints, radius):
+    """The fit's observations and model arguments (as :func:`_observations`, :func:`control_args`) for the control
+    points padded by :func:`_padded_columns`."""
+    pixel, scan, latitude, longitude, sigma = _padded_columns(control)
+    radius = float(radius)
+    observations = {"latitude": Observations(latitude, sigma / radius),
+                    "longitude": Observations(longitude, sigma / (radius * np.cos(latitude)))}
+    return observations, (pixel, scan, longitude)
+
+
+def _unpadded(adjustment: Adjustment, count: int) -> Adjustment:
+    """A fit's adjustment on :func:`_padded` observations with the padding left out: each latitude and longitude
+    table cut to the ``count`` points, the w-partners' flat indices (latitudes, then longitudes) renumbered."""
+    rows = int(np.shape(adjustment.residuals["latitude"])[0])
+
+    def cut(table):  # NumPy: slicing JAX arrays of every bucket's shape eagerly would compile each slice
+        return {g: np.asarray(v)[:count] if g in ("latitude", "longitude") else np.asarray(v) for g, v in table.items()}
+
+    partners = {g: np.where(v >= rows, v - rows + count, v) for g, v in cut(adjustment.w_partner).items()}
+    return dataclasses.replace(
+        adjustment, residuals=cut(adjustment.residuals), redundancy=cut(adjustment.redundancy),
+        standardized_residuals=cut(adjustment.standardized_residuals),
+        minimal_detectable_bias=cut(adjustment.minimal_detectable_bias),
+        estimated_errors=cut(adjustment.estimated_errors), w_correlation=cut(adjustment.w_correlation),
+        w_partner=partners)
 
 
 def orbit_solver(control: ControlPoints, start: ScanModel, factorization: str = "jacobi",
@@ -141,8 +184,8 @@ def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_
     branch (descending for ``"south"``, ascending for ``"north"``), wins.
     """
     branch = np.pi if direction == "south" else 0.0
-    data = (orbit, jnp.asarray(branch), control.latitude, control.longitude, control.pixel, control.scan,
-            orbit.radius / control.sigma)
+    pixel, scan, latitude, longitude, sigma = _padded_columns(control)  # padding: weight 0
+    data = (orbit, jnp.asarray(branch), latitude, longitude, pixel, scan, float(orbit.radius) / sigma)
     step = 2 * np.pi / node_steps
     nodes = np.arange(node_steps) * step - np.pi
     costs = np.asarray(_node_misfits(jnp.asarray(nodes), *data)[0])
@@ -296,8 +339,9 @@ def _fit_one(control, orbit, direction, n_pixels, n_scans, method, search_option
     start = initial_guess(control, orbit, direction, n_pixels, n_scans)
     # both directions as one southbound problem (the sign of η's rate in the span): one compiled solve for both
     southbound = start.reversed() if direction == "north" else start
-    adjustment = least_squares(_predict, southbound, _observations(control, orbit.radius), args=control_args(control),
-                               free=free_mask(southbound), decrease_tolerance=DECREASE_TOLERANCE)
+    observations, args = _padded(control, orbit.radius)
+    adjustment = _unpadded(least_squares(_predict, southbound, observations, args=args, free=free_mask(southbound),
+                                         decrease_tolerance=DECREASE_TOLERANCE), len(control))
     if not bool(adjustment.converged):
         raise ComputationError(f"the {direction}bound Gauss-Newton fit did not converge in {int(adjustment.steps)} "
                                "steps")
@@ -315,8 +359,9 @@ def check_point_errors(model: ScanModel, check: ControlPoints):
 
     Check points have known positions but take no part in the fit (independent accuracy).
     """
-    lat, lon = model.forward(check.pixel, check.scan)
-    return np.asarray(_distance(lat, lon, check.latitude, check.longitude, model.orbit.radius)) / 1000.0
+    pixel, scan, latitude, longitude, _ = _padded_columns(check)  # one compiled function per bucket of points
+    lat, lon = model.forward(pixel, scan)
+    return np.asarray(_distance(lat, lon, latitude, longitude, model.orbit.radius))[:len(check)] / 1000.0
 
 
 def control_point_deviations(model: ScanModel, control: ControlPoints):

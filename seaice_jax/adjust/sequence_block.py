@@ -551,5 +551,5 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
                   + phase_tie_covariance(current, result, observations, cofactor, options.tie_phase_sigma))
     return SequenceAdjustment(
         tuple(observations.models_at(jnp.asarray(theta))), theta, covariance + systematic,
-        np.asarray(result.cofactor), systematic, float(result.sigma0), result.degrees_of_freedom, latitude, longitude,
-        tuple(order), rounds, factors, result, final, names, options.alpha)
+        np.asarray(result.cofactor), systematic, float(result.sigma0), engine.degrees_of_freedom(current), latitude,
+        longitude, tuple(order), rounds, factors, result, final, names, options.alpha)

@@ -199,7 +199,7 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
     lines += ["", f"RMS GROUND DISTANCE AT THE STATIONS {data['rms_km']:.3f} KM"]
     if fit.adjustment is not None:
         dof = fit.adjustment.degrees_of_freedom
-        if dof > 0:
+        if dof is not None and dof > 0:
             _, p_value, accepted = global_test(fit.adjustment.sigma0**2, dof)
             verdict = ("ACCEPTED" if bool(accepted) else "REJECTED: the control points disagree beyond their sigma"
                        if float(fit.adjustment.sigma0) > 1 else "REJECTED: the control points agree better than their "
