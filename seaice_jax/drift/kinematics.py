@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
 
@@ -375,12 +376,15 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     triangles = np.asarray(triangles)
     sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
-    rates, gradient, area, jacobian = _triangle_rates(jnp.asarray(points[triangles]),
-                                                      jnp.asarray(velocity[triangles]))
-    variance = np.einsum("trkc,tkc->tr", np.asarray(jacobian) ** 2, sigma[triangles] ** 2)
-    rates, std = np.asarray(rates), np.sqrt(variance)
-    return Deformation(triangles, np.abs(np.asarray(area)), np.asarray(gradient), rates[:, 0], rates[:, 1],
-                       rates[:, 2], std[:, 0], std[:, 1], std[:, 2])
+    # padded to a bucket of triangles (copies of the first): one compiled function for every pair of a sequence
+    count = triangles.shape[0]
+    padded = pad(triangles, bucket(count), triangles[0] if count else 0)
+    rates, gradient, area, jacobian = (np.asarray(a)[:count] for a in _triangle_rates(
+        jnp.asarray(points[padded]), jnp.asarray(velocity[padded])))
+    variance = np.einsum("trkc,tkc->tr", jacobian ** 2, sigma[triangles] ** 2)
+    std = np.sqrt(variance)
+    return Deformation(triangles, np.abs(area), gradient, rates[:, 0], rates[:, 1], rates[:, 2], std[:, 0],
+                       std[:, 1], std[:, 2])
 
 
 def error_ellipses(covariances, confidence: float = 0.95):

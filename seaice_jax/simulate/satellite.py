@@ -357,7 +357,7 @@ def render(scene: IceScene, model: ScanModel, time: float, clouds=None, distorti
         v, u = jnp.meshgrid(jnp.arange(1.0, distortion.frame_rows + 1),
                             jnp.arange(1.0, distortion.frame_columns + 1), indexing="ij")
         pixel, scan = distortion.to_image(u, v)
-    return _render(scene, model, time, pixel, scan, clouds)
+    return _render(scene, model, jnp.asarray(time, float), pixel, scan, clouds)  # an array: a float would be static
 
 
 @eqx.filter_jit
