@@ -71,10 +71,15 @@ def _predict(model: ScanModel, args):
 
 def _observations(control: ControlPoints, radius):
     """The control points' known positions and their σ in radians (NumPy: set up outside jit, no compilation)."""
-    sigma, latitude, radius = np.asarray(control.sigma), np.asarray(control.latitude), float(radius)
+    return _observation_groups(control.latitude, control.longitude, control.sigma, radius)
+
+
+def _observation_groups(latitude, longitude, sigma, radius):
+    """``{"latitude", "longitude"}`` observations of known positions (radians) with σ (m) turned into radians."""
+    sigma, latitude, radius = np.asarray(sigma), np.asarray(latitude), float(radius)
     return {
         "latitude": Observations(latitude, sigma / radius),
-        "longitude": Observations(control.longitude, sigma / (radius * np.cos(latitude))),
+        "longitude": Observations(longitude, sigma / (radius * np.cos(latitude))),
     }
 
 
@@ -96,10 +101,7 @@ def _padded(control: ControlPoints, radius):
     """The fit's observations and model arguments (as :func:`_observations`, :func:`control_args`) for the control
     points padded by :func:`_padded_columns`."""
     pixel, scan, latitude, longitude, sigma = _padded_columns(control)
-    radius = float(radius)
-    observations = {"latitude": Observations(latitude, sigma / radius),
-                    "longitude": Observations(longitude, sigma / (radius * np.cos(latitude)))}
-    return observations, (pixel, scan, longitude)
+    return _observation_groups(latitude, longitude, sigma, radius), (pixel, scan, longitude)
 
 
 def _unpadded(adjustment: Adjustment, count: int) -> Adjustment:
