@@ -15,3 +15,10 @@ def pad(array, size: int, fill: ArrayLike = 0):
     array = np.asarray(array)
     filler = np.full((size - array.shape[0],) + array.shape[1:], fill, dtype=array.dtype)
     return np.concatenate([array, filler])
+
+
+def padded_to_bucket(array):
+    """``array`` with copies of its first row appended up to :func:`bucket` of its rows: the padding computes like
+    real data (no NaN, no degenerate geometry), and the caller cuts the results back to the real rows."""
+    array = np.asarray(array)
+    return pad(array, bucket(array.shape[0]), array[0] if array.shape[0] else 0)

@@ -18,7 +18,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # problems; measured on 2 cores, 648 tests: 810 s CPU, 7 min 13 s with the default emitters, 603 s, 5 min 22 s with
 # the classic ones (both pass). `XLA_FLAGS= make test` runs the suite with XLA's defaults; `make test-xla-defaults`
 # (in .ci/run) runs the numerical core with them. Kept out of the library: warm, the classic kernels were slower
-# (the 50-strip block solve 1.15-1.19 s against 0.95-1.02 s).
+# (a 50-strip `simultaneous_block`, compiled, 1.15-1.19 s against 0.95-1.02 s).
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=false")
 
 import jax

@@ -567,10 +567,9 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
     # padded to a bucket, so problems differing only in the number of requested pairs share one compile
     requested = pad(cross_points, bucket(cross_points.shape[0]), -1)
     result = _solve(problem, layout, jnp.asarray(requested), options, jnp.asarray(dof, float))
-    fields = {f.name: getattr(result, f.name) for f in dataclasses.fields(result)}
-    return Adjustment(**(fields | {"parameter_names": tuple(names),
-                                   "degrees_of_freedom": None if is_traced(dof) else int(dof),
-                                   "point_pair_cofactor": result.point_pair_cofactor[:cross_points.shape[0]]}))
+    return dataclasses.replace(result, parameter_names=tuple(names),
+                               degrees_of_freedom=None if is_traced(dof) else int(dof),
+                               point_pair_cofactor=result.point_pair_cofactor[:cross_points.shape[0]])
 
 
 def rescaled(problem: Problem, factors: dict, start: Adjustment | None = None) -> Problem:

@@ -162,7 +162,8 @@ class Solver(eqx.Module):
     def __call__(self, observed, args=None, start=None) -> Adjustment:
         """Adjust to ``observed`` (``{group: values}``), from ``start`` (a parameter pytree) or the initial values."""
         result = _adjust(self, observed, args, start)
-        return result if is_traced(self._dof) else dataclasses.replace(result, degrees_of_freedom=int(self._dof))
+        return result if is_traced(self._dof) else dataclasses.replace(result,
+                                                                         degrees_of_freedom=self.degrees_of_freedom)
 
     def _run(self, observed, args, start) -> Adjustment:
         result = engine.solve(self.problem(observed, args, start), self._options, self.parameter_names,

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax._shapes import bucket, pad
+from seaice_jax._shapes import pad, padded_to_bucket
 from seaice_jax.adjust.appendix_c import appendix_c_search
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
@@ -87,14 +87,9 @@ def _padded_columns(control: ControlPoints):
     """``(pixel, scan, latitude, longitude, sigma)`` of the control points (NumPy) padded to :func:`bucket` rows by
     copies of the first point with σ = ∞ (no observation), so that images with 5-8 points share one compiled fit,
     9-16 another, ... (``seaice remap`` fits every image of a sequence, each with its own number of points)."""
-    rows = bucket(len(control))
-
-    def padded(values, fill=None):
-        values = np.asarray(values, float)
-        return pad(values, rows, values[0] if fill is None else fill)
-
-    return (padded(control.pixel), padded(control.scan), padded(control.latitude), padded(control.longitude),
-            padded(control.sigma, np.inf))
+    pixel, scan, latitude, longitude = (padded_to_bucket(np.asarray(a, float)) for a in (
+        control.pixel, control.scan, control.latitude, control.longitude))
+    return pixel, scan, latitude, longitude, pad(np.asarray(control.sigma, float), pixel.shape[0], np.inf)
 
 
 def _padded(control: ControlPoints, radius):

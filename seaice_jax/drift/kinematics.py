@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax._shapes import bucket, pad
+from seaice_jax._shapes import padded_to_bucket
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
 
@@ -378,7 +378,7 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
     # padded to a bucket of triangles (copies of the first): one compiled function for every pair of a sequence
     count = triangles.shape[0]
-    padded = pad(triangles, bucket(count), triangles[0] if count else 0)
+    padded = padded_to_bucket(triangles)
     rates, gradient, area, jacobian = (np.asarray(a)[:count] for a in _triangle_rates(
         jnp.asarray(points[padded]), jnp.asarray(velocity[padded])))
     variance = np.einsum("trkc,tkc->tr", jacobian ** 2, sigma[triangles] ** 2)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax._shapes import bucket, pad
+from seaice_jax._shapes import bucket, padded_to_bucket
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.range_doppler import LookSide, ground_point, look_sign
 from seaice_jax.sensors.navigation import NavigationSpline, fit_navigation, moving_average
@@ -120,10 +120,10 @@ def strip_ground_points(strips, measurements: Measurements, filter_window: float
         navigation = strip_navigation(strip, filter_window, filter_order, filter_weighting)
         c = strip.sweep_delay if sweep_delay is None else sweep_delay[j]
         f = strip.range_scale if range_scale is None else range_scale[j]
-        size = bucket(rows.size)  # padded: strips of similar size share one compilation
+        # padded: strips of similar size share one compilation
         ground = image_to_ground(navigation, jnp.asarray(strip.mark_x), jnp.asarray(strip.mark_times),
-                                jnp.asarray(pad(measurements.x[rows], size, measurements.x[rows[0]])),
-                                jnp.asarray(pad(measurements.y[rows], size, measurements.y[rows[0]])), c, f,
+                                jnp.asarray(padded_to_bucket(measurements.x[rows])),
+                                jnp.asarray(padded_to_bucket(measurements.y[rows])), c, f,
                                 look_sign(strip.look_side), radius)
         points[rows] = np.asarray(ground)[:rows.size]
     return points
@@ -149,7 +149,7 @@ def nadir_altitudes(strip: StripRecord):
     rate = (strip.mark_times[-1] - strip.mark_times[-2]) / (strip.mark_x[-1] - strip.mark_x[-2])
     mark_x = np.concatenate([strip.mark_x, strip.mark_x[-1] + step])
     mark_times = np.concatenate([strip.mark_times, strip.mark_times[-1] + rate * step])
-    times = _imaging_times(jnp.asarray(pad(strip.nadir_x, bucket(n), strip.nadir_x[0])), jnp.asarray(mark_x),
+    times = _imaging_times(jnp.asarray(padded_to_bucket(strip.nadir_x)), jnp.asarray(mark_x),
                            jnp.asarray(mark_times))
     return np.interp(np.asarray(times)[:n], strip.record_times, strip.record_altitudes)
 
