@@ -224,6 +224,8 @@ class Adjustment(eqx.Module):
         flags = []
         for key in keys if groups is None else groups:
             w = np.asarray(self.standardized_residuals[key])
+            if w.size == 0:
+                continue
             w2 = w.reshape(w.shape[0], -1) if w.ndim else w.reshape(1, 1)
             tables = [np.asarray(d[key]).reshape(w2.shape) if d is not None else np.full(w2.shape, np.nan)
                       for d in (self.estimated_errors, self.minimal_detectable_bias, self.w_correlation,

@@ -193,14 +193,30 @@ def _solve_time(point, trajectory, time_start, time_end, wavelength, doppler, gr
     grid = jnp.linspace(time_start, time_end, grid_points)
     residual_on_grid = jax.vmap(lambda t: doppler_residual(t, point, trajectory, wavelength, doppler))(grid)
     speed_on_grid = jax.vmap(lambda t: _norm(trajectory(t)[1]))(grid)
-    time = grid[jnp.argmin(jnp.abs(residual_on_grid) / speed_on_grid)]
+    start = grid[jnp.argmin(jnp.abs(residual_on_grid) / speed_on_grid)]
+    return refined_imaging_time(point, trajectory, start, wavelength, doppler, iterations)
+
+
+def refined_imaging_time(point, trajectory, time, wavelength=0.0, doppler=0.0, iterations=8):
+    """Newton's method on the Doppler condition from ``time``, a time near the imaging time (for one point).
+
+    ``iterations`` steps, the derivative by forward-mode autodiff through the trajectory; differentiable with respect
+    to ``point`` and the trajectory (gradients flow through the unrolled steps). A start within a few seconds of a
+    satellite's imaging time (a measured image time, say) needs three or four steps.
+
+    Args:
+        point: ``(3,)`` ground point, m. trajectory: ``t -> (position, velocity)``. time: scalar start, s.
+
+    Returns:
+        ``(time, slant_range)``, scalars.
+    """
 
     def newton_step(t, _):
         value, slope = jax.jvp(lambda tt: doppler_residual(tt, point, trajectory, wavelength, doppler),
                                (t,), (jnp.ones_like(t),))
         return t - value / slope, None
 
-    time, _ = jax.lax.scan(newton_step, time, None, length=iterations)
+    time, _ = jax.lax.scan(newton_step, jnp.asarray(time, float), None, length=iterations)
     position, _ = trajectory(time)
     return time, _norm(point - position)
 

@@ -133,10 +133,11 @@ class Sentinel1Annotation:
         """Two-way slant range time of the swath's middle sample, s (SLC: τ₀ + N / (2 f_s))."""
         return self.first_range_time + self.samples / (2.0 * self.range_sampling_rate)
 
-    def orbit(self):
-        """The annotated orbit as a :class:`~seaice_jax.geometry.state_vectors.StateVectorOrbit` (times from
-        :attr:`epoch`)."""
-        return StateVectorOrbit(self.orbit_times, self.orbit_positions, self.orbit_velocities)
+    def orbit(self, epoch: np.datetime64 | None = None) -> StateVectorOrbit:
+        """The annotated orbit as a :class:`~seaice_jax.geometry.state_vectors.StateVectorOrbit`, times in seconds
+        from ``epoch`` (default :attr:`epoch`; give one epoch to the orbits of several images adjusted together)."""
+        shift = 0.0 if epoch is None else float(_seconds(self.epoch, np.datetime64(epoch, "ns")))
+        return StateVectorOrbit(self.orbit_times + shift, self.orbit_positions, self.orbit_velocities)
 
     def time_of(self, moment) -> np.ndarray:
         """Seconds from :attr:`epoch` of ``numpy.datetime64`` values or ISO 8601 strings."""
