@@ -10,7 +10,12 @@ The policy, for every command that writes:
 - SIGINT and SIGTERM while the run holds its target raise :class:`Interrupted` (remembered, so one swallowed by a
   callback is raised again before the result is moved into place); the target is then left as it was (the old
   complete result, or nothing) and the temporary folder is removed;
-- temporary folders left by a killed (SIGKILL) run are removed by the next run into the same target.
+- temporary folders left by a killed (SIGKILL) run are removed by the next run into the same target;
+- a read-only target (or parent folder) is refused before anything runs, even an empty folder and even for a
+  superuser; a target folder given as a symbolic link to a folder is written into the folder it links to (the link
+  is kept);
+- a disk (or quota, or file-size limit) that cannot take the output stops the run with an ``OSError`` naming the
+  target and saying that it was left as it was.
 
 The move into place is one ``rename`` (``renameat2(RENAME_EXCHANGE)`` when replacing a folder, where the C library
 has it), with SIGINT and SIGTERM held back while it runs.
@@ -157,13 +162,50 @@ def _inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
+def _followed(target: Path, folder: bool) -> Path:
+    """``target`` (absolute), or for a folder given as a symbolic link to a folder, the folder it links to (the
+    result is written there and the link is kept).
+
+    Raises:
+        SeaiceError: naming ``target``: a link to nothing (or to a file, for a folder).
+    """
+    target = Path(target).absolute()
+    if not (folder and target.is_symlink()):
+        return target
+    linked = Path(os.path.realpath(target))
+    if not linked.is_dir():
+        what = "a file" if linked.exists() else "nothing (a broken link)"
+        raise SeaiceError(f"{target}: is a link to {linked}, which is {what}, not a folder; choose another output "
+                          "folder")
+    return linked
+
+
+def _read_only(path: Path) -> bool:
+    """Whether ``path`` is read-only: no write permission bit at all (respected even by a superuser's run, whose
+    ``access`` check would pass), or not writable by this process (a read-only file system)."""
+    return not os.stat(path).st_mode & 0o222 or not os.access(path, os.W_OK)
+
+
+def _check_writable(target: Path, folder: bool) -> None:
+    """Refuse a read-only target (an existing folder or file) or a target whose parent folder cannot take the
+    temporary folder and the final rename."""
+    if os.path.lexists(target) and _read_only(target):
+        raise SeaiceError(f"{target}: is read-only (not writable); make it writable or choose another output "
+                          f"{'folder' if folder else 'file'}")
+    parent = next((p for p in target.parents if p.exists()), None)
+    if parent is not None and (not parent.is_dir() or _read_only(parent) or not os.access(parent, os.X_OK)):
+        raise SeaiceError(f"{target}: cannot be created, {parent} is not a writable folder; choose another output "
+                          f"{'folder' if folder else 'file'}")
+
+
 def _check_target(target: Path, folder: bool, overwrite: bool, inputs: Iterable[str | os.PathLike]) -> None:
-    """Refuse a target that is not of the right kind, that holds a result (unless ``overwrite``), or that contains an
-    input or the working folder (replacing it would destroy them)."""
+    """Refuse a target that is not of the right kind, that is read-only or whose parent is, that holds a result
+    (unless ``overwrite``), or that contains an input or the working folder (replacing it would destroy them)."""
     if folder and os.path.lexists(target) and (not target.is_dir() or target.is_symlink()):
         raise SeaiceError(f"{target}: exists and is not a folder; choose another output folder")
     if not folder and target.is_dir():
         raise SeaiceError(f"{target}: is a folder; give a file name")
+    _check_writable(target, folder)
     resolved = target.resolve()
     for source in inputs:
         if _inside(Path(source).resolve(), resolved):
@@ -207,10 +249,14 @@ def _move_into_place(staging: Path, target: Path, folder: bool) -> None:
         os.replace(staging, target)
 
 
+_FULL = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT)
+"""Errors of a disk (or quota, or file-size limit) that cannot take the output."""
+
+
 @contextlib.contextmanager
 def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
             inputs: Iterable[str | os.PathLike]) -> Iterator[OutputFolder]:
-    target = Path(target).absolute()
+    target = _followed(Path(target), folder)
     _check_target(target, folder, overwrite, inputs)
     target.parent.mkdir(parents=True, exist_ok=True)
     handle = staging = None
@@ -223,10 +269,18 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
                 staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
                 os.chmod(staging, 0o777 & ~current_umask())
             _check_target(target, folder, overwrite, ())
-            yield OutputFolder(staging, target, folder)
-            check_interrupted()
-            with _signals_held():
-                _move_into_place(staging, target, folder)
+            try:
+                yield OutputFolder(staging, target, folder)
+                check_interrupted()
+                with _signals_held():
+                    _move_into_place(staging, target, folder)
+            except OSError as error:
+                if error.errno not in _FULL:
+                    raise
+                left = "left as it was" if os.path.lexists(target) else "not created"
+                raise OSError(error.errno, f"{target}: could not be written ({error.strerror}); the output was "
+                                           f"{left} and nothing partial was kept; free some space (or raise the "
+                                           "limit) or choose another output") from error
         finally:
             with _signals_held():
                 if staging is not None:
@@ -244,7 +298,7 @@ def check_output(target: str | os.PathLike, overwrite: bool = False, inputs: Ite
         SeaiceError: naming ``target``: not of the right kind, not empty (without ``overwrite``), or containing an
             input or the working folder.
     """
-    _check_target(Path(target).absolute(), folder, overwrite, inputs)
+    _check_target(_followed(Path(target), folder), folder, overwrite, inputs)
 
 
 def output_folder(target: str | os.PathLike, overwrite: bool = False,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from seaice_jax.cli import CACHE_VARIABLE
+from seaice_jax.cli import CACHE_VARIABLE, main
 from seaice_jax.errors import SeaiceError
 from seaice_jax.outputs import Interrupted, output_file, output_folder
 
@@ -288,3 +288,93 @@ def test_simulate_refuses_an_existing_folder_before_loading_the_simulation(tmp_p
     assert f"{target}: the folder is not empty; pass --overwrite" in run.stderr
     assert _tree(target) == {"keep.txt": b"old\n"}
     _clean(tmp_path)
+
+
+def test_a_read_only_folder_is_refused_even_when_empty(tmp_path, capsys):
+    """An empty folder counts as absent, but a read-only one is the user's "do not touch": refused before anything
+    runs (also for a superuser, whose writes the permission bits would not stop), and left as it was."""
+    target = tmp_path / "out"
+    target.mkdir()
+    target.chmod(0o555)
+    try:
+        with pytest.raises(SeaiceError, match=r"out: is read-only \(not writable\)"), output_folder(target):
+            pass
+        assert main(["examples", str(target), "--overwrite"]) == 2
+        assert "out: is read-only (not writable)" in capsys.readouterr().err
+        assert target.is_dir() and list(target.iterdir()) == [] and target.stat().st_mode & 0o777 == 0o555
+        target.chmod(0o755)
+        (tmp_path / "locked").mkdir(mode=0o555)
+        with pytest.raises(SeaiceError, match=r"locked/out: cannot be created, .*locked is not a writable folder"):
+            with output_folder(tmp_path / "locked" / "out"):
+                pass
+    finally:
+        for folder in (target, tmp_path / "locked"):
+            if folder.exists():
+                folder.chmod(0o755)
+    _clean(tmp_path)
+
+
+def test_a_linked_output_folder_is_followed(tmp_path, capsys):
+    real = tmp_path / "real"
+    real.mkdir()
+    (tmp_path / "link").symlink_to(real)
+    assert main(["examples", str(tmp_path / "link"), "-q"]) == 0
+    assert (tmp_path / "link").is_symlink() and (real / "AGRID.STN").is_file()
+    assert main(["examples", str(tmp_path / "link"), "-q"]) == 2  # the folder it links to holds a result now
+    assert "the folder is not empty" in capsys.readouterr().err
+    (tmp_path / "broken").symlink_to(tmp_path / "nowhere")
+    with pytest.raises(SeaiceError, match=r"broken: is a link to .*nowhere, which is nothing \(a broken link\), not "
+                                          r"a folder"), output_folder(tmp_path / "broken"):
+        pass
+    _clean(tmp_path)
+
+
+_FULL_DISK = textwrap.dedent("""
+    import resource, sys
+    from seaice_jax.cli import main
+    resource.setrlimit(resource.RLIMIT_FSIZE, (100, 100))  # no file past 100 bytes: the examples are 79-305
+    sys.exit(main(["examples", sys.argv[1], "--overwrite"]))
+""")
+
+
+def _old_result(target: Path) -> dict[str, bytes]:
+    with output_folder(target) as folder:
+        _write(folder, {"old.csv": "old\n"})
+    return _tree(target)
+
+
+def test_a_file_size_limit_while_writing_leaves_the_output_untouched(tmp_path):
+    """The file-size limit (RLIMIT_FSIZE) stands in for a full disk everywhere: the write fails half way (EFBIG),
+    the run exits 1 naming the output and saying it was left as it was, and nothing partial is kept."""
+    target = tmp_path / "out"
+    old = _old_result(target)
+    run = subprocess.run([sys.executable, "-c", _FULL_DISK, str(target)], capture_output=True, text=True, cwd=ROOT,
+                         timeout=120)
+    assert run.returncode == 1, run.stderr
+    assert f"{target}: could not be written (File too large); the output was left as it was" in run.stderr
+    assert "Traceback" not in run.stderr
+    assert _tree(target) == old
+    _clean(tmp_path)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.geteuid() != 0, reason="mounting a tmpfs needs root")
+def test_a_full_disk_while_writing_leaves_the_output_untouched(tmp_path, capsys):
+    """A real full disk (ENOSPC): a 64 KiB tmpfs, filled, then a run replacing its output."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        target = disk / "out"
+        old = _old_result(target)
+        (disk / "filler").write_bytes(b"\0" * 60_000)
+        assert main(["examples", str(target), "--overwrite"]) == 1
+        error = capsys.readouterr().err
+        assert f"{target}: could not be written (No space left on device); the output was left as it was" in error
+        assert _tree(target) == old
+        assert main(["examples", str(disk / "new")]) == 1
+        assert f"{disk / 'new'}: could not be written (No space left on device); the output was not created" in \
+            capsys.readouterr().err
+        assert sorted(p.name for p in disk.iterdir()) == ["filler", "out"]  # no staging folder, no lock
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
