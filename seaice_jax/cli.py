@@ -241,6 +241,39 @@ def _examples(args) -> int:
     return EXIT_OK
 
 
+def _sar_geolocate(args) -> int:
+    from seaice_jax.workflows.sar import run_geolocate
+
+    result = run_geolocate(args.annotation, args.out, reference=args.reference, overwrite=args.overwrite,
+                           say=_stages(args))
+    _say(args, result.check.report())
+    for path in result.files:
+        _say(args, f"wrote {path}")
+    return EXIT_OK
+
+
+def _sar_commands(commands, common) -> None:
+    sar = commands.add_parser("sar", help="spaceborne radar (Sentinel-1) products: geolocation on the WGS84 "
+                              "ellipsoid", description="Spaceborne radar products (Sentinel-1 SLC and GRD): the "
+                              "zero-Doppler range-Doppler model on the WGS84 ellipsoid, from the product's "
+                              "annotation (orbit state vectors, timing, geolocation grid).",
+                              formatter_class=_HelpFormatter)
+    verbs = sar.add_subparsers(dest="sar_command", required=True, metavar="VERB")
+    geolocate = _command(verbs, common, "geolocate", "recompute a Sentinel-1 annotation's geolocation grid and "
+                         "compare it with ESA's, point by point",
+                         "Recompute every point of a Sentinel-1 annotation's geolocation grid with the zero-Doppler "
+                         "model on WGS84 (forward: time, range, height -> latitude, longitude; inverse; and image "
+                         "line/pixel -> time through bursts, GRD polynomials and the bistatic shift) and write the "
+                         "grid, our points and the differences (geolocation.csv), a map figure (geolocation.png) and "
+                         "a report.")
+    geolocate.add_argument("annotation", help="the product's annotation XML (SAFE annotation/s1?-*.xml)")
+    geolocate.add_argument("--out", required=True, help="output folder")
+    geolocate.add_argument("--reference", help="the middle sub-swath's annotation (IW2, EW3) of the same product: "
+                                               "the bistatic reference of a side sub-swath (default: recovered "
+                                               "from the file's own grid)")
+    geolocate.set_defaults(run=_sar_geolocate)
+
+
 def _command(commands, common, name: str, summary: str, description: str | None = None):
     """A sub-command with the shared options (``common``) and the defaults shown in its ``--help``."""
     return commands.add_parser(name, help=summary, description=description or summary[0].upper() + summary[1:] + ".",
@@ -508,6 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     block.add_argument("--out", required=True, help="output folder")
     block.set_defaults(run=_block)
     _sequence_commands(commands, common)
+    _sar_commands(commands, common)
     return parser
 
 

@@ -14,18 +14,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import assert_jacobian_matches
 
 from seaice_jax._shapes import pad
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import geodetic_to_ecef, north_east
-from seaice_jax.geometry.state_vectors import StateVectorOrbit
+from seaice_jax.geometry.state_vectors import ORBIT_BUCKET, StateVectorOrbit
 from seaice_jax.geometry.zero_doppler import ellipsoid_ground_point, ellipsoid_imaging_time_and_range
 from seaice_jax.io.sentinel1 import read_annotation
+from tests.helpers import assert_jacobian_matches
 
 DATA = Path(__file__).with_name("data") / "sentinel1"
 FILES = sorted(DATA.glob("*.xml"))
-GRID_POINTS, ORBIT_VECTORS = 1024, 32
+GRID_POINTS = 1024
 
 
 def _padded(values):
@@ -36,7 +36,7 @@ def _geolocated(annotation):
     """Our forward and inverse on the file's grid: horizontal error (m), time error (s), range error (m)."""
     grid, orbit = annotation.grid, annotation.orbit()
     n = grid.line.size
-    padded = orbit.padded(ORBIT_VECTORS)
+    padded = orbit.padded(ORBIT_BUCKET)
     latitude, longitude = (np.asarray(v)[:n] for v in ellipsoid_ground_point(
         padded, _padded(grid.azimuth_time), _padded(grid.slant_range), _padded(grid.height)))
     ours = np.asarray(geodetic_to_ecef(latitude, longitude, grid.height))
@@ -122,7 +122,7 @@ def test_orbit_reproduces_its_state_vectors_and_padding_changes_nothing():
     np.testing.assert_allclose(position, annotation.orbit_positions, atol=1e-6)
     np.testing.assert_allclose(velocity, annotation.orbit_velocities, atol=1e-9)
     times = np.linspace(*orbit.time_span, 57)
-    for a, b in zip(orbit(times), orbit.padded(ORBIT_VECTORS)(times), strict=True):
+    for a, b in zip(orbit(times), orbit.padded(ORBIT_BUCKET)(times), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
@@ -130,7 +130,7 @@ def test_round_trip_and_jacobian():
     """Forward then inverse returns the time and range (repeated 20 times: no drift); the forward's derivatives
     match central differences."""
     annotation = read_annotation(FILES[0])
-    orbit = annotation.orbit().padded(ORBIT_VECTORS)
+    orbit = annotation.orbit().padded(ORBIT_BUCKET)
     grid = annotation.grid
     time, slant, height = _padded(grid.azimuth_time), _padded(grid.slant_range), _padded(grid.height + 300.0)
     for _ in range(20):

@@ -24,10 +24,8 @@ from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solv
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import geodetic_to_ecef
 from seaice_jax.geometry.range_doppler import refined_imaging_time
-from seaice_jax.geometry.state_vectors import StateVectorOrbit
+from seaice_jax.geometry.state_vectors import ORBIT_BUCKET, StateVectorOrbit
 
-ORBIT_VECTORS = 32
-"""Every image's orbit is padded to this many state vectors: one compiled adjustment for any set of images."""
 NEWTON_STEPS = 4
 """Newton steps of the zero-Doppler time from the measured time (micro- to milliseconds away: converged in two)."""
 
@@ -70,7 +68,7 @@ class GroundPoints:
 
 
 def _stacked(orbits):
-    padded = [orbit.padded(ORBIT_VECTORS) for orbit in orbits]
+    padded = [orbit.padded(max(ORBIT_BUCKET, orbit.times.size)) for orbit in orbits]
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *padded)
 
 

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from seaice_jax.geometry._checks import is_traced
 from seaice_jax.geometry._vectors import as_float
 from seaice_jax.geometry.trajectory import Trajectory
 
@@ -20,6 +21,10 @@ DEFAULT_ORDER = 8
 """Number of state vectors in each Lagrange window (a degree-7 polynomial). On the Sentinel-1 annotations of the
 tests the ESA geolocation grid points then satisfy the range equation to micrometres and the zero-Doppler equation
 to 1.4 cm or better."""
+
+ORBIT_BUCKET = 32
+"""State vectors an orbit is padded to (:meth:`StateVectorOrbit.padded`) where many products share one compiled
+geolocation (a Sentinel-1 annotation holds 14-18)."""
 
 
 class StateVectorOrbit(Trajectory):
@@ -47,7 +52,7 @@ class StateVectorOrbit(Trajectory):
 
     def __check_init__(self):
         times = self.times
-        if isinstance(times, jax.core.Tracer):
+        if is_traced(times, self.count):
             return
         n = int(self.count)
         if self.positions.shape != self.velocities.shape or self.positions.shape != (times.shape[0], 3):

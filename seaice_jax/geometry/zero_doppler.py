@@ -37,7 +37,7 @@ def ellipsoid_ground_point(
     trajectory: Trajectory,
     azimuth_time,
     slant_range,
-    height=0.0,
+    height: ArrayLike = 0.0,
     look_side: LookSide | ArrayLike = "right",
     semi_major_axis=WGS84_SEMI_MAJOR_AXIS,
     flattening=WGS84_FLATTENING,
@@ -114,7 +114,7 @@ def _circle_axes(position, velocity):
 
 
 def ellipsoid_imaging_time_and_range(
-    trajectory: Trajectory, latitude, longitude, height=0.0, time_start=None, time_end=None,
+    trajectory: Trajectory, latitude, longitude, height: ArrayLike = 0.0, time_start=None, time_end=None,
     semi_major_axis=WGS84_SEMI_MAJOR_AXIS, flattening=WGS84_FLATTENING,
 ):
     """Inverse of :func:`ellipsoid_ground_point`: zero-Doppler azimuth time (s) and slant range (m) of ground points.

@@ -136,7 +136,7 @@ class Sentinel1Annotation:
     def orbit(self, epoch: np.datetime64 | None = None) -> StateVectorOrbit:
         """The annotated orbit as a :class:`~seaice_jax.geometry.state_vectors.StateVectorOrbit`, times in seconds
         from ``epoch`` (default :attr:`epoch`; give one epoch to the orbits of several images adjusted together)."""
-        shift = 0.0 if epoch is None else float(_seconds(self.epoch, np.datetime64(epoch, "ns")))
+        shift = 0.0 if epoch is None else float(_seconds(self.epoch, np.asarray(epoch, "datetime64[ns]")))
         return StateVectorOrbit(self.orbit_times + shift, self.orbit_positions, self.orbit_velocities)
 
     def time_of(self, moment) -> np.ndarray:
@@ -218,7 +218,8 @@ def _parse(path: Path):
     return root
 
 
-def _seconds(moments: np.ndarray, epoch: np.datetime64) -> np.ndarray:
+def _seconds(moments, epoch) -> np.ndarray:
+    """Seconds from ``epoch`` of ``numpy.datetime64`` values (nanosecond exact)."""
     return (moments - epoch) / np.timedelta64(1, "ns") * 1e-9
 
 
@@ -243,15 +244,24 @@ class _Reader:
             self.fail(where, "is empty")
         return text.strip()
 
-    def number(self, where: str, parent=None, integer=False):
+    def number(self, where: str, parent=None) -> float:
         text = self.text(where, parent)
         try:
-            value = int(text) if integer else float(text)
+            value = float(text)
         except ValueError:
-            self.fail(where, f"is not a{'n integer' if integer else ' number'}: {text[:40]!r}")
+            self.fail(where, f"is not a number: {text[:40]!r}")
+            raise
         if not np.isfinite(value):
             self.fail(where, f"is not finite: {text!r}")
         return value
+
+    def integer(self, where: str, parent=None) -> int:
+        text = self.text(where, parent)
+        try:
+            return int(text)
+        except ValueError:
+            self.fail(where, f"is not an integer: {text[:40]!r}")
+            raise
 
     def numbers(self, where: str, parent=None) -> np.ndarray:
         text = self.text(where, parent)
@@ -297,11 +307,11 @@ class _Reader:
         product_type = self.text(f"{header}/productType")
         if product_type not in ("SLC", "GRD"):
             self.fail(f"{header}/productType", f"is {product_type!r}: only SLC and GRD are read")
-        lines = self.number(f"{info}/numberOfLines", integer=True)
-        samples = self.number(f"{info}/numberOfSamples", integer=True)
+        lines = self.integer(f"{info}/numberOfLines")
+        samples = self.integer(f"{info}/numberOfSamples")
         first_line = self.time(f"{info}/productFirstLineUtcTime")
         bursts = self.root.findall("swathTiming/burstList/burst")
-        lines_per_burst = self.number("swathTiming/linesPerBurst", integer=True) if bursts else 0
+        lines_per_burst = self.integer("swathTiming/linesPerBurst") if bursts else 0
         burst_times = np.array([_seconds(self.time("azimuthTime", b), epoch) for b in bursts])
         annotation = Sentinel1Annotation(
             path=self.path, mission=self.text(f"{header}/missionId"), mode=self.text(f"{header}/mode"),

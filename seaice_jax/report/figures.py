@@ -505,3 +505,54 @@ def coastline_overlay_figure(image, model, coastline, control=None, title: str =
 def plot_coastline_overlay(path: str | os.PathLike, image, model, coastline, control=None, title: str = "") -> Path:
     """Write :func:`coastline_overlay_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
     return _save(coastline_overlay_figure(image, model, coastline, control, title), path)
+
+
+def sar_geolocation_figure(check) -> Figure:
+    """A radar product's geolocation grid recomputed by the zero-Doppler model beside the processor's (a
+    :class:`~seaice_jax.workflows.sar.GeolocationCheck`): left, the grid on the NSIDC polar stereographic map
+    (EPSG:3413 north, 3976 south) with the coast, coloured by the horizontal difference; right, each point's east
+    and north difference, coloured by pixel (range)."""
+    from seaice_jax.geometry.projections import nsidc_polar_stereographic
+
+    annotation, grid = check.annotation, check.annotation.grid
+    projection = nsidc_polar_stereographic("north" if np.mean(grid.latitude) >= 0 else "south")
+    x, y = (np.asarray(v) for v in projection.forward(np.radians(grid.latitude), np.radians(grid.longitude)))
+    difference = check.horizontal * 1000.0
+    fig, (ax_map, ax_diff) = _figure(11.0, 5.0, 1, 2, gridspec_kw={"width_ratios": [1.25, 1.0]})
+    lines, pixels = np.unique(grid.line), np.unique(grid.pixel)
+    if lines.size * pixels.size == grid.line.size:
+        order = np.lexsort((grid.pixel, grid.line))
+        gx, gy = x[order].reshape(lines.size, pixels.size), y[order].reshape(lines.size, pixels.size)
+        edge_x = np.concatenate([gx[0], gx[:, -1], gx[-1, ::-1], gx[::-1, 0]])
+        edge_y = np.concatenate([gy[0], gy[:, -1], gy[-1, ::-1], gy[::-1, 0]])
+        ax_map.plot(edge_x, edge_y, color="0.3", lw=0.8, label="image footprint")
+    dots = ax_map.scatter(x, y, c=difference, s=9, cmap="viridis", zorder=3, label="geolocation grid points")
+    margin = 0.15 * max(np.ptp(x), np.ptp(y))
+    ax_map.set_xlim(x.min() - margin, x.max() + margin)
+    ax_map.set_ylim(y.min() - margin, y.max() + margin)
+    ax_map.set_aspect("equal")
+    crs = crs_name(projection)
+    _kilometre_axes(ax_map, crs)
+    _decorate(ax_map, projection)
+    fig.colorbar(dots, ax=ax_map, label="horizontal difference from ESA (mm)", shrink=0.8)
+    ax_map.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), fontsize=7, frameon=False, ncol=2)
+    ax_map.set_title(f"{annotation.mission} {annotation.mode} {annotation.swath} {annotation.polarisation} "
+                     f"{annotation.product_type}, {np.datetime_as_string(annotation.epoch, unit='D')}", fontsize=9)
+    points = ax_diff.scatter(check.east * 1000.0, check.north * 1000.0, c=grid.pixel, s=9, cmap="plasma")
+    fig.colorbar(points, ax=ax_diff, label="pixel (slant range increases)", shrink=0.8)
+    ax_diff.axhline(0.0, color="0.6", lw=0.6)
+    ax_diff.axvline(0.0, color="0.6", lw=0.6)
+    limit = max(5.0, 1.15 * float(np.max(np.abs(np.concatenate([check.east, check.north])))) * 1000.0)
+    ax_diff.set_xlim(-limit, limit)
+    ax_diff.set_ylim(-limit, limit)
+    ax_diff.set_aspect("equal")
+    ax_diff.set_xlabel("east difference (mm)", fontsize=8)
+    ax_diff.set_ylabel("north difference (mm)", fontsize=8)
+    ax_diff.set_title(f"zero-Doppler model minus ESA: max {difference.max():.1f} mm ({grid.line.size} points)",
+                      fontsize=9)
+    return fig
+
+
+def plot_sar_geolocation(path: str | os.PathLike, check) -> Path:
+    """Write :func:`sar_geolocation_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(sar_geolocation_figure(check), path)
