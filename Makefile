@@ -46,6 +46,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_remap.py
 	$(PY) benchmarks/bench_nist.py
 	$(PY) benchmarks/bench_sequence_block.py
+	$(PY) benchmarks/bench_sentinel1.py
 	$(PY) benchmarks/bench_cli.py
 
 clean:
