@@ -252,6 +252,18 @@ def _sar_geolocate(args) -> int:
     return EXIT_OK
 
 
+def _sar_remap(args) -> int:
+    from seaice_jax.workflows.sar import run_sar_remap
+
+    result = run_sar_remap(args.annotation, args.image, args.out, spacing=args.spacing, height=args.height,
+                           orbit_sigma=args.orbit_sigma, decimation=args.decimation, overwrite=args.overwrite,
+                           say=_stages(args))
+    _say(args, result.report)
+    for path in result.files:
+        _say(args, f"wrote {path}")
+    return EXIT_OK
+
+
 def _sar_commands(commands, common) -> None:
     sar = commands.add_parser("sar", help="spaceborne radar (Sentinel-1) products: geolocation on the WGS84 "
                               "ellipsoid", description="Spaceborne radar products (Sentinel-1 SLC and GRD): the "
@@ -272,6 +284,27 @@ def _sar_commands(commands, common) -> None:
                                                "the bistatic reference of a side sub-swath (default: recovered "
                                                "from the file's own grid)")
     geolocate.set_defaults(run=_sar_geolocate)
+    remap = _command(verbs, common, "remap", "put a Sentinel-1 GRD (or stripmap) image onto a polar stereographic "
+                     "grid with the exact zero-Doppler model",
+                     "Remap a Sentinel-1 GRD or stripmap image onto the NSIDC polar stereographic grid (EPSG:3413 "
+                     "north, 3976 south) that covers it: every cell centre -> zero-Doppler azimuth time and slant "
+                     "range on the WGS84 ellipsoid -> image line and pixel -> bilinear sample. Writes remapped.tif, "
+                     "position_sigma.tif (the horizontal σ of each cell from the orbit's position σ), remapped.png "
+                     "and report.txt.")
+    remap.add_argument("annotation", help="the product's annotation XML")
+    remap.add_argument("image", help="the measurement image (.tif from the SAFE measurement/ folder, or .npy)")
+    remap.add_argument("--out", required=True, help="output folder")
+    remap.add_argument("--spacing", type=_POSITIVE, default=200.0, help="grid cell size, m")
+    remap.add_argument("--height", type=_in_range(float, -1000.0, 9000.0),
+                       help="ellipsoidal height of the surface, m (default: the heights of the annotation's "
+                            "geolocation grid between its points: the processor's terrain, the geoid over the sea)")
+    remap.add_argument("--orbit-sigma", type=_POSITIVE, default=5.0,
+                       help="m per axis, the orbit's position σ for the per-cell σ: give your orbit product's "
+                            "stated accuracy (precise orbits: a few cm); the default is an assumption for the "
+                            "downlinked orbit of the annotation, not an ESA figure")
+    remap.add_argument("--decimation", type=_in_range(int, 1, 1000), default=1,
+                       help="the image keeps every N-th line and sample of the product (a quick-look)")
+    remap.set_defaults(run=_sar_remap)
 
 
 def _command(commands, common, name: str, summary: str, description: str | None = None):

@@ -66,3 +66,61 @@ def test_reference_must_be_the_middle_sub_swath(tmp_path, capsys, reference):
     assert main(["sar", "geolocate", str(iw1), "--reference", str(path), "--out", str(tmp_path / "o")]) == 2
     assert not (tmp_path / "o").exists()
     assert str(path.name) in capsys.readouterr().err
+
+
+GRD = EW.parent / "s1b-iw-grd-vv-20210401t052623-20210401t052648-026269-032297-001.xml"
+
+
+def _pattern(latitude_deg, longitude_deg):
+    """A smooth ground pattern (waves of ~50 km) to paint on an image and find again on the map."""
+    return np.sin(np.radians(latitude_deg) * 400.0) + np.cos(np.radians(longitude_deg) * 300.0)
+
+
+def test_remap_puts_the_ground_pattern_where_it_belongs(tmp_path):
+    """An image painted from ESA's geolocation grid alone (lat/lon bilinear in line/pixel between its points,
+    independent of our model) comes back on the polar grid where the pattern says, and the σ grows with range."""
+    import tifffile
+
+    decimation = 40
+    annotation = read_annotation(GRD).decimated(decimation)
+    grid = annotation.grid
+    lines, pixels = np.unique(grid.line), np.unique(grid.pixel)
+    order = np.lexsort((grid.pixel, grid.line))
+    table_lat = grid.latitude[order].reshape(lines.size, pixels.size)
+    table_lon = grid.longitude[order].reshape(lines.size, pixels.size)
+    line, pixel = np.meshgrid(np.arange(annotation.lines), np.arange(annotation.samples), indexing="ij")
+
+    def bilinear(table):
+        i = np.clip(np.searchsorted(lines, line, side="right") - 1, 0, lines.size - 2)
+        j = np.clip(np.searchsorted(pixels, pixel, side="right") - 1, 0, pixels.size - 2)
+        u = (line - lines[i]) / (lines[i + 1] - lines[i])
+        v = (pixel - pixels[j]) / (pixels[j + 1] - pixels[j])
+        return ((1 - u) * (1 - v) * table[i, j] + u * (1 - v) * table[i + 1, j] + (1 - u) * v * table[i, j + 1]
+                + u * v * table[i + 1, j + 1])
+
+    image = _pattern(bilinear(table_lat), bilinear(table_lon)).astype(np.float32)
+    tifffile.imwrite(tmp_path / "quicklook.tif", image)
+    out = tmp_path / "remap"
+    assert main(["sar", "remap", str(GRD), str(tmp_path / "quicklook.tif"), "--out", str(out), "--spacing", "2000",
+                 "--decimation", str(decimation)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["position_sigma.tif", "remapped.png", "remapped.tif",
+                                                     "report.txt"]
+    from seaice_jax.io.products import read_geotiff
+
+    remapped, map_grid, _ = read_geotiff(out / "remapped.tif")
+    sigma, _, _ = read_geotiff(out / "position_sigma.tif")
+    latitude, longitude = (np.degrees(np.asarray(v)) for v in map_grid.latitude_longitude())
+    inside = np.isfinite(remapped)
+    assert inside.sum() > 5000
+    error = remapped[inside] - _pattern(latitude, longitude)[inside]
+    assert np.sqrt(np.mean(error**2)) < 0.01
+    assert np.isfinite(sigma[inside]).all() and np.all(sigma[inside] > 0)
+
+
+def test_remap_refuses_a_tops_slc_and_a_wrong_image_size(tmp_path, capsys):
+    np.save(tmp_path / "small.npy", np.zeros((10, 10)))
+    assert main(["sar", "remap", str(GRD), str(tmp_path / "small.npy"), "--out", str(tmp_path / "a")]) == 2
+    assert "describes 16685 lines x 25788 samples" in capsys.readouterr().err
+    assert main(["sar", "remap", str(EW), str(tmp_path / "small.npy"), "--out", str(tmp_path / "b")]) == 2
+    assert "bursts" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -174,6 +174,48 @@ class Sentinel1Annotation:
         tau = self.slant_range_time(pixel, time)
         return time + (tau - self.bistatic_reference_time) / 2.0, tau * SPEED_OF_LIGHT / 2.0
 
+    def image_coordinates(self, azimuth_time, slant_range) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse of :meth:`radar_coordinates`: fractional image ``(line, pixel)`` of zero-Doppler azimuth times
+        (s from :attr:`epoch`) and slant ranges (m). GRD and stripmap; a TOPS SLC's bursts overlap in time (a time
+        has two lines), so its image coordinates are refused.
+
+        Raises:
+            SeaiceError: for a TOPS SLC (bursts).
+        """
+        if self.burst_times.size:
+            raise SeaiceError(f"{self.path.name}: a TOPS SLC's bursts overlap in azimuth time: image coordinates of "
+                              f"a ground point are ambiguous (use the GRD product)")
+        time, slant = np.broadcast_arrays(np.asarray(azimuth_time, float), np.asarray(slant_range, float))
+        tau = 2.0 * slant / SPEED_OF_LIGHT
+        line_time = time - (tau - self.bistatic_reference_time) / 2.0
+        line = (line_time - self.first_line_time) / self.line_interval
+        if self.ground_to_slant is None:
+            return line, (tau - self.first_range_time) * self.range_sampling_rate
+        table = self.ground_to_slant
+        nearest = np.abs(line_time[..., None] - table.azimuth_time).argmin(axis=-1)
+        coefficients = table.coefficients[nearest]
+        powers = np.arange(coefficients.shape[-1])
+        ground = (slant - coefficients[..., 0]) / coefficients[..., 1]
+        for _ in range(6):  # Newton on the monotone ground-to-slant polynomial
+            value = np.sum(coefficients * ground[..., None] ** powers, axis=-1) - slant
+            slope = np.sum(coefficients[..., 1:] * powers[1:] * ground[..., None] ** (powers[1:] - 1), axis=-1)
+            ground = ground - value / slope
+        return line, (ground + table.ground_range_origin[nearest]) / self.range_pixel_spacing
+
+    def decimated(self, factor: int) -> "Sentinel1Annotation":
+        """The annotation of the image that keeps every ``factor``-th line and sample (``image[::factor, ::factor]``,
+        a quick-look): line ``k`` is the product's line ``k · factor``, likewise pixels. GRD and stripmap."""
+        if factor < 1 or int(factor) != factor:
+            raise SeaiceError(f"decimation factor must be a positive integer, got {factor}")
+        if self.burst_times.size:
+            raise SeaiceError(f"{self.path.name}: a TOPS SLC cannot be decimated line by line (bursts)")
+        grid = replace(self.grid, line=self.grid.line / factor, pixel=self.grid.pixel / factor)
+        return replace(self, lines=-(-self.lines // factor), samples=-(-self.samples // factor),
+                       line_interval=self.line_interval * factor,
+                       range_sampling_rate=self.range_sampling_rate / factor,
+                       range_pixel_spacing=self.range_pixel_spacing * factor,
+                       azimuth_pixel_spacing=self.azimuth_pixel_spacing * factor, grid=grid)
+
     def with_bistatic_reference(self, reference: "Sentinel1Annotation") -> "Sentinel1Annotation":
         """This annotation with τ_ref from ``reference``, the middle sub-swath's annotation of the same product."""
         if reference.swath not in MIDDLE_SWATHS:

@@ -556,3 +556,32 @@ def sar_geolocation_figure(check) -> Figure:
 def plot_sar_geolocation(path: str | os.PathLike, check) -> Path:
     """Write :func:`sar_geolocation_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
     return _save(sar_geolocation_figure(check), path)
+
+
+def remapped_sar_figure(image, grid, position_sigma, title: str) -> Figure:
+    """A radar image remapped onto a map grid (left, grey, 1-99 % stretch, the coast as a line) beside the
+    horizontal position σ of its cells (right, m), both in km of the grid's projection with graticule and scale."""
+    fig, (ax_image, ax_sigma) = _figure(11.0, 5.2, 1, 2)
+    left = float(grid.x_first) - 0.5 * float(grid.pixel_width)
+    top = float(grid.y_first) + 0.5 * float(grid.pixel_height)
+    extent = (left, left + grid.n_columns * float(grid.pixel_width), top - grid.n_rows * float(grid.pixel_height),
+              top)
+    finite = np.asarray(image)[np.isfinite(image)]
+    low, high = np.percentile(finite, [1, 99]) if finite.size else (0.0, 1.0)
+    crs = crs_name(grid.projection)
+    shown = ax_image.imshow(np.ma.masked_invalid(image), cmap="gray", extent=extent, vmin=low, vmax=high,
+                            interpolation="nearest")
+    fig.colorbar(shown, ax=ax_image, label="image value (as in the product)", shrink=0.8)
+    sigma = ax_sigma.imshow(np.ma.masked_invalid(position_sigma), cmap="viridis", extent=extent,
+                            interpolation="nearest")
+    fig.colorbar(sigma, ax=ax_sigma, label="horizontal position σ from the orbit (m)", shrink=0.8)
+    for ax, name in ((ax_image, title), (ax_sigma, "position σ")):
+        _kilometre_axes(ax, crs)
+        _decorate(ax, grid.projection, land=False, coast_colour="orange")
+        ax.set_title(name, fontsize=9)
+    return fig
+
+
+def plot_remapped_sar(path: str | os.PathLike, *args, **options) -> Path:
+    """Write :func:`remapped_sar_figure` as the PNG ``path`` (and the requested extra formats beside it)."""
+    return _save(remapped_sar_figure(*args, **options), path)
