@@ -49,6 +49,25 @@ def _in_range(kind, low, high, above: bool = False):
 
 
 _POSITIVE = _in_range(float, 0.0, None, above=True)
+
+
+def _tracking_option(name: str, high: int):
+    """An argparse type for the integer tracking option ``name``: at most ``high`` and accepted by
+    :class:`~seaice_jax.imagery.tracking.TrackingOptions` (its rule, the one place it is written; imported only when
+    the option is given, so that ``--help`` loads neither OpenCV nor JAX)."""
+    in_range = _in_range(int, None, high)
+
+    def convert(text: str) -> int:
+        value = in_range(text)
+        from seaice_jax.imagery.tracking import TrackingOptions
+
+        try:
+            TrackingOptions(**{name: value})
+        except SeaiceError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+        return value
+
+    return convert
 QUIET, NORMAL, VERBOSE = 0, 1, 2
 """Verbosity levels: ``-q`` (errors only), default (report and progress bars), ``-v`` (also timings, tracebacks)."""
 
@@ -351,9 +370,9 @@ def _sequence_commands(commands, common) -> None:
     track.add_argument("remapped", nargs="+", help="folder written by `seaice remap`, or GeoTIFF files in time order")
     track.add_argument("--times", nargs="+", help="ISO 8601 UTC time of each GeoTIFF (default: its DateTime tag)")
     track.add_argument("--out", required=True, help="output folder (CF-NetCDF drift, floes.csv, GeoJSON)")
-    track.add_argument("--patch", type=_in_range(int, 3, 1001), default=15,
-                       help="side of the square template matched between the images, pixels (odd)")
-    track.add_argument("--search", type=_in_range(int, 1, 1000), default=6,
+    track.add_argument("--patch", type=_tracking_option("patch", 1001), default=15,
+                       help="side of the square template matched between the images, pixels (odd, >= 5)")
+    track.add_argument("--search", type=_tracking_option("search", 1000), default=6,
                        help="largest displacement searched, pixels")
     track.add_argument("--spacing", type=_in_range(int, 1, 10_000), default=8, help="pixels between tracked points")
     track.add_argument("--min-correlation", type=_in_range(float, -1.0, 1.0), default=0.6,

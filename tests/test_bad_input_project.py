@@ -77,6 +77,11 @@ CASES = [
     ("c1_control.csv", lambda t: _replace_cell(t, 2, "lon_deg", "400"),
      r"c1_control.csv, line 2: point P0001: .*longitude within \[-180°, 360°\).* lon 400.0"),
     ("c1_control.csv", lambda t: _replace_cell(t, 2, "sigma_m", "-100"), r"c1_control.csv, line 2: .*sigma_m -100.0"),
+    ("c1_control.csv", lambda t: "".join(t.splitlines(keepends=True)[:1] + t.splitlines(keepends=True)[2:]),
+     r"c1_measurements.csv, line \d+: control point P0001 is not in the coverage's control file .*c1_control.csv: "
+     r"give its position there, or measure it as a 'tie' or 'drift' point"),
+    ("project.toml", lambda t: t.replace('control = "c1_control.csv"', ""),
+     r"c1_measurements.csv, line \d+: control point P0001 is not in a control file \(.*coverage 'day 0' gives none\)"),
 ]
 
 

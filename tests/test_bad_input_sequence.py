@@ -140,6 +140,10 @@ def test_a_static_mask_not_of_bools_on_the_grid_is_refused_before_anything_is_wr
     (["movie", "R", "--out", "f.gif", "--scale", "0"], r"argument --scale: must be >= 1, got 0"),
     (["movie", "R", "--out", "f.gif", "--scale", "100000"], r"argument --scale: must be <= 64, got 100000"),
     (["track", "R", "--out", "d", "--spacing", "0"], r"argument --spacing: must be >= 1, got 0"),
+    (["track", "R", "--out", "d", "--patch", "3"], r"argument --patch: patch must be an odd number of pixels >= 5, "
+                                                   r"got 3"),  # the rule of TrackingOptions, checked by it
+    (["track", "R", "--out", "d", "--patch", "16"], r"argument --patch: patch must be an odd number"),
+    (["track", "R", "--out", "d", "--search", "0"], r"argument --search: search must be at least 1 pixel, got 0"),
     (["track", "R", "--out", "d", "--tracking-sigma", "-0.2"], r"argument --tracking-sigma: must be > 0.0"),
     (["remap", "P", "--out", "d", "--fill", "1000000"], r"argument --fill: must be <= 1000, got 1000000"),
     (["velocities", "F", "--out", "d", "--velocity-sigma", "-1"], r"argument --velocity-sigma: must be > 0.0"),

@@ -148,9 +148,10 @@ def _line_operator(x, weight):
 
 
 @jax.jit
-def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight):
+def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight, reach=jnp.pi / 2):
     """For each trial node: the misfit of straight lines η(scan), ψ(pixel) through the control points, and the
-    lines' coefficients (intercept at line/pixel 1, slope). Infinite misfit off the pass's branch."""
+    lines' coefficients (intercept at line/pixel 1, slope). Infinite misfit where a point's η is ``reach`` or more
+    from the pass's branch (π/2: off the branch; more: across the orbit's apex, for an image that straddles it)."""
     scan_design = jnp.stack([jnp.ones_like(scan), scan - 1.0], 1) * weight[:, None]
     pixel_design = jnp.stack([jnp.ones_like(pixel), pixel - 1.0], 1) * weight[:, None]
 
@@ -164,10 +165,16 @@ def _node_misfits(nodes, orbit, branch, latitude, longitude, pixel, scan, weight
         psi_line = pixel_inverse @ (psi * weight)
         cost = jnp.sum((scan_design @ eta_line - eta * weight) ** 2) + jnp.sum(
             (pixel_design @ psi_line - psi * weight) ** 2)
-        on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < jnp.pi / 2)
+        on_branch = jnp.all(jnp.abs(_wrap(eta - branch)) < reach)
         return jnp.where(on_branch, cost, jnp.inf), eta_line, psi_line
 
     return jax.vmap(misfit)(nodes)
+
+
+APEX_REACH = 3 * np.pi / 4
+"""Radians of orbital angle from the middle of a pass's branch that :func:`initial_guess` accepts for an image across
+the orbit's apex (its northernmost or southernmost point, the pole's side of a polar orbiter's pass): 45° of orbit
+beyond the apex, when no node puts every control point on the pass's own branch."""
 
 
 def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_pixels: int = 512,
@@ -184,14 +191,19 @@ def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_
     pixel, scan, latitude, longitude, sigma = _padded_columns(control)  # padding: weight 0
     data = (orbit, jnp.asarray(branch), latitude, longitude, pixel, scan, float(orbit.radius) / sigma)
     step = 2 * np.pi / node_steps
-    nodes = np.arange(node_steps) * step - np.pi
-    costs = np.asarray(_node_misfits(jnp.asarray(nodes), *data)[0])
-    nodes = nodes[np.argmin(costs)] + np.linspace(-step, step, node_steps)  # same shape: no second compilation
-    costs, eta_lines, psi_lines = (np.asarray(a) for a in _node_misfits(jnp.asarray(nodes), *data))
-    k = int(np.argmin(costs))
-    if not np.isfinite(costs[k]):
-        raise SeaiceError(f"no {direction}bound pass of this orbit puts all {len(control)} control points on one "
-                          "side of the orbit's apex; try the other direction")
+    for reach in (np.pi / 2, APEX_REACH):  # the pass's own branch; else an image across the orbit's apex
+        nodes = np.arange(node_steps) * step - np.pi
+        costs = np.asarray(_node_misfits(jnp.asarray(nodes), *data, jnp.asarray(reach))[0])
+        nodes = nodes[np.argmin(costs)] + np.linspace(-step, step, node_steps)  # same shape: no second compilation
+        costs, eta_lines, psi_lines = (np.asarray(a) for a in _node_misfits(jnp.asarray(nodes), *data,
+                                                                              jnp.asarray(reach)))
+        k = int(np.argmin(costs))
+        if np.isfinite(costs[k]):
+            break
+    else:
+        raise SeaiceError(f"no {direction}bound pass of this orbit reaches all {len(control)} control points on its "
+                          f"branch, or within {np.degrees(APEX_REACH) - 90:.0f}° of orbit across its apex; try the "
+                          "other direction")
     sign = 1.0 if direction == "south" else -1.0
     eta_first, eta_rate = eta_lines[k]
     psi_first, psi_rate = psi_lines[k]
@@ -282,6 +294,41 @@ class OrbitFit:
         return (np.abs(w_lat) > limit) | (np.abs(w_lon) > limit)
 
 
+LINE_TOLERANCE = 0.5
+"""Pixels: control points all within this distance of one line of the image (a scan line, a pixel column or any
+other) cannot determine the scan model's spans across that line (its observations are pixel positions, read to
+about half a pixel)."""
+
+
+def check_control_spread(control: ControlPoints, tolerance: float = LINE_TOLERANCE) -> None:
+    """Refuse control points that lie on one line of the image: the spans across it are undetermined (the
+    Gauss-Newton fit would divide by zero or report standard deviations of thousands of degrees, the Appendix C
+    search a wrong span).
+
+    Raises:
+        RankDeficiencyError: naming the points, their line and the unknowns it leaves undetermined.
+    """
+    if len(control) < 3:
+        return  # too few points: the fits name the undetermined unknowns themselves
+    pixel, scan = np.asarray(control.pixel, float), np.asarray(control.scan, float)
+    centred = np.column_stack([pixel, scan]) - [pixel.mean(), scan.mean()]
+    across = np.linalg.svd(centred, full_matrices=False)[2][-1]  # the normal of the best-fitting line
+    if np.abs(centred @ across).max() >= tolerance:
+        return
+    ids = ", ".join(control.ids[:8]) + (f" and {len(control) - 8} more" if len(control) > 8 else "")
+    if np.ptp(pixel) < tolerance and np.ptp(scan) < tolerance:
+        line, unknowns = f"at one image position (pixel {pixel.mean():g}, scan {scan.mean():g})", FREE_PARAMETERS
+    elif np.ptp(scan) < 2 * tolerance:
+        line, unknowns = f"on one scan line ({scan.mean():g})", ("orbital_angle_first", "orbital_angle_span")
+    elif np.ptp(pixel) < 2 * tolerance:
+        line, unknowns = f"on one pixel column ({pixel.mean():g})", ("scanner_angle_span", "subtrack_pixel")
+    else:
+        line, unknowns = "on one line of the image (pixel, scan)", FREE_PARAMETERS[:4]
+    raise RankDeficiencyError(f"control points {ids} lie {line}, within {tolerance:g} px: they cannot determine "
+                              f"{', '.join(unknowns)} apart (the spans across that line are undetermined); add "
+                              "control points off that line", unknowns)
+
+
 def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "auto", n_pixels: int = 512,
                    n_scans: int = 512, method: str = "gauss-newton", search_options: dict | None = None) -> OrbitFit:
     """Fit the five scan-model unknowns of one image to its control points.
@@ -309,6 +356,7 @@ def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "au
             f"{len(control)} control point(s) give {2 * len(control)} observations for the {len(FREE_PARAMETERS)} "
             f"unknowns: the observations cannot determine {', '.join(FREE_PARAMETERS)} (at least 3 points needed)",
             FREE_PARAMETERS)
+    check_control_spread(control)
     directions = ("south", "north") if direction == "auto" else (direction,)
     fits, failures = {}, {}
     for candidate in directions:

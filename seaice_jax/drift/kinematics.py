@@ -21,6 +21,7 @@ import numpy as np
 from seaice_jax._shapes import padded_to_bucket
 from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
+from seaice_jax.timefmt import time_after
 
 TRANSFORMS = ("rigid", "similarity", "affine")
 
@@ -178,6 +179,61 @@ class Velocities:
         return np.hypot(self.u_grid, self.v_grid)
 
 
+MAX_ICE_SPEED = 2.0
+"""m/s (173 km/day): faster than any sea-ice drift measured (storms drive pack ice at up to about 1 m/s). A speed
+beyond it comes from a wrong time or a wrong match, not from the ice."""
+
+
+SUBPIXEL = 0.1
+"""Pixels: about the smallest displacement a correlation peak resolves (sub-pixel peak fitting)."""
+
+
+def check_tracking_interval(names, times, pixel_size: float, limit: float = MAX_ICE_SPEED,
+                            resolution: float = SUBPIXEL) -> None:
+    """Refuse consecutive images too close in time to measure ice drift: where the smallest displacement the
+    tracking resolves (``resolution`` pixels of ``pixel_size`` m) over their interval is already a speed beyond
+    ``limit`` m/s, every vector between them would be noise read as an implausible speed.
+
+    Raises:
+        SeaiceError: naming the two images, their interval and the speed a resolved step would be.
+    """
+    step = resolution * pixel_size
+    for k, interval in enumerate(np.diff(np.asarray(times, float))):
+        speed = step / interval if interval > 0 else np.inf
+        if speed > limit:
+            raise SeaiceError(
+                f"images {names[k]} and {names[k + 1]} are {interval:.6g} s apart: the smallest displacement the "
+                f"tracking resolves ({resolution:g} px of {pixel_size:g} m) would already be {speed * 86.4:.3g} "
+                f"km/day, beyond the fastest sea-ice drift ({limit * 86.4:.0f} km/day); check the images' times "
+                f"(ice drift needs images at least {step / limit:.0f} s apart on this grid)")
+
+
+def plausible_velocities(v: Velocities, limit: float = MAX_ICE_SPEED,
+                         epoch: str | None = None) -> tuple[Velocities, str | None]:
+    """``v`` without the velocities faster than ``limit`` m/s (a wrong time or a wrong match, not ice), and a note
+    saying how many were left out and naming the fastest, with its fixes' times (ISO 8601 with ``epoch``, else s)
+    (None when every velocity is plausible).
+
+    Raises:
+        SeaiceError: every velocity beyond ``limit``, naming the fastest floe and its fixes' interval.
+    """
+    speed = v.speed
+    implausible = ~(speed <= limit)
+    if not implausible.any():
+        return v, None
+    k = int(np.nanargmax(np.where(implausible, speed, -np.inf)))
+    ends = (v.time[k] - v.interval[k] / 2, v.time[k] + v.interval[k] / 2)
+    when = (" and ".join(time_after(epoch, t) for t in ends) if epoch is not None
+            else " and ".join(f"{t:.6g} s" for t in ends))
+    worst = f"floe {v.floe[k]}: {speed[k] * 86.4:.3g} km/day over {v.interval[k]:.6g} s between its fixes at {when}"
+    if implausible.all():
+        raise SeaiceError(f"all {speed.size} velocities are beyond the fastest sea-ice drift ({limit * 86.4:.0f} "
+                          f"km/day), e.g. {worst}; check the fixes' times and positions")
+    kept = Velocities(*(np.asarray(getattr(v, name))[~implausible] for name in Velocities.__dataclass_fields__))
+    return kept, (f"{int(implausible.sum())} of {speed.size} velocities beyond the fastest sea-ice drift "
+                  f"({limit * 86.4:.0f} km/day) left out (a wrong time or position); the fastest: {worst}")
+
+
 def east_north_axes(projection, x, y):
     """Unit vectors ``(n, 2)`` of geographic east and north in map-grid components at map points ``(x, y)`` (from
     the projection's Jacobian: the grid's convergence)."""
@@ -315,6 +371,7 @@ class Deformation:
     Attributes:
         triangles: ``(t, 3)`` point indices. area: ``(t,)`` m². gradient: ``(t, 2, 2)`` ∂(u, v)/∂(x, y).
         divergence, shear, vorticity: ``(t,)``; sigma_divergence, sigma_shear, sigma_vorticity: ``(t,)``.
+        note: what was left out and why (points on one line, degenerate triangles), empty when nothing was.
     """
 
     triangles: np.ndarray
@@ -326,6 +383,18 @@ class Deformation:
     sigma_divergence: np.ndarray
     sigma_shear: np.ndarray
     sigma_vorticity: np.ndarray
+    note: str = ""
+
+
+DEGENERATE = 1e-6
+"""A triangle whose height is below this fraction of its longest edge has its corners on one line (to the rounding of
+their coordinates): its strain rates are 0/0, and it is left out of a Delaunay triangulation's deformation."""
+
+
+def _no_triangles(note: str) -> Deformation:
+    empty = np.zeros(0)
+    return Deformation(np.zeros((0, 3), int), empty, np.zeros((0, 2, 2)), empty, empty, empty, empty, empty, empty,
+                       note)
 
 
 def _strain_rates(corners, velocity):
@@ -358,21 +427,35 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     Args:
         points: ``(n, 2)`` m. velocity: ``(n, 2)`` m/s. velocity_sigma: σ per velocity component, scalar or
             ``(n,)`` or ``(n, 2)`` m/s.
-        triangles: ``(t, 3)`` indices; default the Delaunay triangulation of ``points``.
+        triangles: ``(t, 3)`` indices; default the Delaunay triangulation of ``points`` without its degenerate
+            triangles (:data:`DEGENERATE`; the result's ``note`` says how many were left out), or no triangles when
+            the points lie on one line (``note`` says so).
     """
     points, velocity = np.asarray(points, float), np.asarray(velocity, float)
     if points.shape != velocity.shape or points.ndim != 2 or points.shape[1] != 2:
         raise SeaiceError(f"points and velocities must both be (n, 2), got {points.shape} and {velocity.shape}")
     if points.shape[0] < 3:
         raise SeaiceError(f"deformation needs at least 3 points, got {points.shape[0]}")
+    note = ""
     if triangles is None:
         from matplotlib.tri import Triangulation  # Delaunay; imported here so that the package loads without it
 
+        on_line = f"the {points.shape[0]} points lie on one line (or coincide): no triangles"
         try:
             triangles = Triangulation(points[:, 0], points[:, 1]).triangles
         except (RuntimeError, ValueError):
-            raise SeaiceError(f"deformation: the {points.shape[0]} points lie on one line (or coincide): no "
-                              "triangles") from None
+            return _no_triangles(on_line)
+        corners = points[triangles]
+        edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+        a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+        doubled_area = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+        degenerate = ~(doubled_area > DEGENERATE * edges**2)
+        if degenerate.all():
+            return _no_triangles(on_line)
+        if degenerate.any():
+            note = (f"{int(degenerate.sum())} of {degenerate.size} triangles left out: their corners lie on one "
+                    "line")
+            triangles = triangles[~degenerate]
     triangles = np.asarray(triangles)
     sigma = np.broadcast_to(np.asarray(velocity_sigma, float).reshape(
         (-1, 1) if np.ndim(velocity_sigma) == 1 else np.shape(velocity_sigma)), points.shape)
@@ -384,7 +467,7 @@ def deformation(points, velocity, velocity_sigma, triangles=None) -> Deformation
     variance = np.einsum("trkc,tkc->tr", jacobian ** 2, sigma[triangles] ** 2)
     std = np.sqrt(variance)
     return Deformation(triangles, np.abs(area), gradient, rates[:, 0], rates[:, 1], rates[:, 2], std[:, 0],
-                       std[:, 1], std[:, 2])
+                       std[:, 1], std[:, 2], note)
 
 
 def error_ellipses(covariances, confidence: float = 0.95):

@@ -12,6 +12,7 @@ grid axes (``u_grid``, ``v_grid``) and toward geographic east and north (``u_eas
 """
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -124,7 +125,7 @@ def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, MapGrid, str | No
             rotated or sheared (a north-up grid is needed).
     """
     import rasterio
-    from rasterio.errors import RasterioIOError
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
     from seaice_jax.geometry.crs import projection_from_definition
 
@@ -132,11 +133,19 @@ def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, MapGrid, str | No
     if not path.is_file():
         raise SeaiceError(f"{path}: file not found")
     try:
-        with rasterio.open(path) as source:
+        with warnings.catch_warnings():  # a file without a geotransform is refused below, naming it
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            opened = rasterio.open(path)
+        with opened as source:
+            if source.driver != "GTiff":  # e.g. a drift NetCDF of `seaice track`: no band 1 to read
+                raise SeaiceError(f"{path}: not a GeoTIFF (GDAL reads it as {source.driver}); give single-band "
+                                  "GeoTIFF images or the folder of `seaice remap`")
             crs, transform, tags = source.crs, source.transform, source.tags()
+            bands = source.count
+            if bands != 1:
+                raise SeaiceError(f"{path}: {bands} bands; a single-band image is needed")
             values = source.read(1).astype(float)
             nodata = source.nodata
-            bands = source.count
     except RasterioIOError as error:
         raise SeaiceError(f"{path}: not a readable GeoTIFF ({error})") from None
     if bands != 1:

@@ -178,12 +178,14 @@ def _check_measurement(row: dict, where: str, strip_index: dict, kinds: dict, se
 
 
 def _read_measurements(path: Path, strip_index: dict, frames: list, ids: dict, kinds: dict):
-    """The measurement CSV of a coverage: its :class:`Measurements` (comparator -> image coordinates) and each
-    strip's nadir returns ``[(x, y), ...]``."""
-    point, strip_of, x, y, seen, nadir_lines = [], [], [], [], {}, {}
+    """The measurement CSV of a coverage: its :class:`Measurements` (comparator -> image coordinates), each
+    strip's nadir returns ``[(x, y), ...]`` and the line of each control point's first measurement."""
+    point, strip_of, x, y, seen, nadir_lines, control_lines = [], [], [], [], {}, {}, {}
     nadir = [[] for _ in frames]
     for line, row in read_table(path, ("point", "strip", "kind", "x_mm", "y_mm"), ("x_mm", "y_mm")):
         _check_measurement(row, f"{path}, line {line}", strip_index, kinds, seen, nadir_lines, line)
+        if row["kind"] == "control":
+            control_lines.setdefault(row["point"], line)
         j = strip_index[row["strip"]]
         image_x, image_y = (float(v) for v in frames[j].to_image(row["x_mm"], row["y_mm"]))
         if row["kind"] == "nadir":
@@ -193,7 +195,8 @@ def _read_measurements(path: Path, strip_index: dict, frames: list, ids: dict, k
         strip_of.append(j)
         x.append(image_x)
         y.append(image_y)
-    return Measurements(np.array(point, int), np.array(strip_of, int), np.array(x), np.array(y)), nadir
+    return (Measurements(np.array(point, int), np.array(strip_of, int), np.array(x), np.array(y)), nadir,
+            control_lines)
 
 
 def _read_control(path: Path, plane: TangentPlane, ids: dict, kinds: dict) -> dict:
@@ -232,12 +235,18 @@ def _read_coverage(cov: dict, c: int, path: Path, plane: TangentPlane, ids: dict
         frames.append(frame)
     if "measurements" not in cov:
         raise SeaiceError(f"{label}: missing measurements")
-    measurements, nadir = _read_measurements(project_file(base, cov["measurements"], label, "measurements",
-                                                           allow_outside), strip_index, frames, ids, kinds)
+    measurements_path = project_file(base, cov["measurements"], label, "measurements", allow_outside)
+    measurements, nadir, control_lines = _read_measurements(measurements_path, strip_index, frames, ids, kinds)
     strips = [replace(strip, nadir_x=np.array([v[0] for v in nadir[j]]), nadir_y=np.array([v[1] for v in nadir[j]]))
               for j, strip in enumerate(strips)]
-    control = _read_control(project_file(base, cov["control"], label, "control", allow_outside), plane, ids,
-                            kinds) if cov.get("control") else {}
+    control_path = project_file(base, cov["control"], label, "control", allow_outside) if cov.get("control") else None
+    control = _read_control(control_path, plane, ids, kinds) if control_path is not None else {}
+    for name, line in control_lines.items():  # a control point without a known position would become a tie
+        if ids[name] not in control:
+            where = (f"the coverage's control file {control_path}" if control_path is not None
+                     else f"a control file ({label} gives none)")
+            raise SeaiceError(f"{measurements_path}, line {line}: control point {name} is not in {where}: give its "
+                              "position there, or measure it as a 'tie' or 'drift' point")
     epoch = _number(cov, "epoch_s", label) if "epoch_s" in cov else 0.0
     return Coverage(str(cov.get("name", f"coverage {c + 1}")), epoch, tuple(strips), measurements, control)
 

@@ -116,12 +116,14 @@ def read_image_file(path: Path) -> np.ndarray:
     if not path.exists():
         raise SeaiceError(f"{path}: file not found")
     suffix = path.suffix.lower()
-    if suffix == ".npy":
-        data = np.load(path, allow_pickle=False)
-    elif suffix in (".tif", ".tiff"):
+    if suffix in (".npy", ".tif", ".tiff"):
         import tifffile
 
-        data = tifffile.imread(path)
+        try:
+            data = np.load(path, allow_pickle=False) if suffix == ".npy" else tifffile.imread(path)
+        except (ValueError, EOFError, OSError, tifffile.TiffFileError) as error:
+            kind = "a .npy array" if suffix == ".npy" else "a TIFF image"
+            raise SeaiceError(f"{path}: truncated or not {kind} ({error})") from None
     elif suffix == ".png":
         import cv2
 

@@ -41,6 +41,7 @@ import numpy as np
 from distributed import Client, LocalCluster, as_completed
 from tqdm.auto import tqdm
 
+from seaice_jax.drift.kinematics import check_tracking_interval
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
@@ -55,6 +56,7 @@ from seaice_jax.workflows.image_sequence import (
     Step,
     TrackedPair,
     TrackedSequence,
+    check_grid_reached,
     follow_floes,
     land_of_grid,
     load_remapped,
@@ -82,7 +84,7 @@ class RemappedImage:
         index: the image's place in the project. time: s since the project's epoch. rectification: its scan model
         and fit. covariance: ``(5, 5)`` of the model's unknowns (zero for a given model). worker: the process id
         that ran the task. seconds: its wall time. peak_memory: bytes, the worker process's peak resident memory
-        when the task ended (:func:`peak_memory`).
+        when the task ended (:func:`peak_memory`). pixels: its valid pixels on the grid (0: it misses the grid).
     """
 
     index: int
@@ -92,6 +94,7 @@ class RemappedImage:
     worker: int
     seconds: float
     peak_memory: int
+    pixels: int = 0
 
 
 @dataclass(frozen=True)
@@ -140,13 +143,13 @@ def remap_image(project: SequenceProject, entry: dict, index: int, staging: str 
     staging = Path(staging)
     image = read_sequence_image(project, entry, index)
     alone = SequenceProject(project.path, project.epoch, project.grid, project.grid_spec, (image,))
-    stack, (rectification,) = remap_sequence(alone, method, fill)
+    stack, (rectification,) = remap_sequence(alone, method, fill, check_reached=False)
     write_geotiff(staging / f"{image.name}.tif", stack.values[0], project.grid,
                   f"{image.name} {time_after(project.epoch, image.time)}")
     with atomic_path(_part_path(staging, index)) as temporary, open(temporary, "wb") as stream:
         np.savez(stream, values=stack.values[0], valid=stack.valid[0], sigma=stack.sigma[0])
     return RemappedImage(index, float(image.time), rectification, stack.covariance, os.getpid(),
-                         time.perf_counter() - start, peak_memory())
+                         time.perf_counter() - start, peak_memory(), int(stack.valid[0].sum()))
 
 
 def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
@@ -285,6 +288,8 @@ def remap_archive(client: Client, project_path: str | os.PathLike, staging: str 
         raise
     result = ArchiveRemap(project, tuple(image for image in images if image is not None),
                           len(client.scheduler_info(n_workers=-1)["workers"]))
+    check_grid_reached(project.path, project.grid_spec, [image.rectification.name for image in result.images],
+                       [image.pixels for image in result.images])
     files = [staging / f"{image.rectification.name}.tif" for image in result.images]
     files += write_archive_summary(result, staging)
     for part in (staging / PARTS).iterdir():
@@ -302,6 +307,9 @@ def archive_report(result: ArchiveRemap, method: str, fill: int) -> str:
         sigma0 = np.array([r.sigma0 for r in fitted])
         lines.append(f"  {len(fitted)} scan models fitted to control points: σ̂0 median {np.median(sigma0):.2f}, "
                      f"max {sigma0.max():.2f}")
+    missing = [image.rectification.name for image in result.images if not image.pixels]
+    if missing:
+        lines.append(f"  note: no pixel of {', '.join(missing)} falls in the grid (their remapped images are empty)")
     seconds = np.array([image.seconds for image in result.images])
     lines.append(f"  per image: median {np.median(seconds):.2f} s of a worker (max {seconds.max():.1f} s, with the "
                  f"compilations); peak memory of a worker {max(i.peak_memory for i in result.images) / 2**20:.0f} MiB")
@@ -347,6 +355,8 @@ def staged_stack(remapped_dir: str | os.PathLike, parts: str | os.PathLike) -> R
         SeaiceError: naming ``remapped.npz``: missing, truncated, or not a remapped stack of two or more images.
     """
     path, parts = Path(remapped_dir) / "remapped.npz", Path(parts)
+    if Path(remapped_dir).is_file():
+        raise SeaiceError(f"{remapped_dir}: a file, not the folder written by `seaice remap`; give that folder")
     if not path.exists():
         raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
     parts.mkdir(exist_ok=True)
@@ -453,6 +463,7 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
     check_cluster_options(workers, scheduler)
     with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
         stack = staged_stack(remapped_dir, folder.path / PARTS)
+        check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
         mask = None if land is None else land_of_grid(land, stack.grid)
         with dask_client(workers, scheduler) as client:
             tracked, files = track_archive(client, stack, folder.path, options, tracking_sigma, layout, mask,

@@ -29,9 +29,11 @@ from seaice_jax.drift.kinematics import (
     Velocities,
     box_averages,
     box_time_series,
+    check_tracking_interval,
     deformation,
     east_north_axes,
     grid_to_east_north,
+    plausible_velocities,
     velocities,
 )
 from seaice_jax.drift.records import FloeRecords, read_records, write_records
@@ -216,10 +218,26 @@ def adopted_models(project: SequenceProject, models_path: str | os.PathLike):
     return tuple(rectifications), covariance
 
 
+def check_grid_reached(path, grid_spec: dict, names, pixels) -> None:
+    """Refuse a map grid that no image reaches (``pixels``: each image's count of valid pixels on the grid): its
+    output would be all empty.
+
+    Raises:
+        SeaiceError: naming the project's grid and the images.
+    """
+    if len(names) and not np.any(np.asarray(pixels) > 0):
+        shape, size = grid_spec.get("shape", ["?", "?"]), grid_spec.get("pixel_m", ["?", "?"])
+        raise SeaiceError(f"{path}: [grid] ({grid_spec.get('projection', 'nsidc-north')}, centre_deg "
+                          f"{grid_spec.get('centre_deg')}, {shape[0]} x {shape[1]} pixels of {size[0]} x {size[1]} m) "
+                          f"misses every image: no pixel of {', '.join(names)} falls in it; check the grid's "
+                          "centre_deg, pixel_m and shape against the images' control points")
+
+
 def remap_sequence(project: SequenceProject, method: str = "bilinear", fill: int = 1, progress: bool = False,
-                   models_path: str | os.PathLike | None = None):
+                   models_path: str | os.PathLike | None = None, check_reached: bool = True):
     """Rectify every image (or adopt the models of ``models_path``: :func:`adopted_models`) and remap the sequence
-    into its grid.
+    into its grid; a grid that no image reaches is refused (:func:`check_grid_reached`) unless not
+    ``check_reached`` (one image of an archive: the archive is checked whole).
 
     Returns:
         ``(stack, rectifications)``: the :class:`RemappedStack` and one :class:`Rectification` per image.
@@ -228,6 +246,9 @@ def remap_sequence(project: SequenceProject, method: str = "bilinear", fill: int
                                   else adopted_models(project, models_path))
     models = tuple(r.model for r in rectifications)
     values, valid = remap([im.data for im in project.images], list(models), project.grid, method=method, fill=fill)
+    if check_reached:
+        check_grid_reached(project.path, project.grid_spec, [im.name for im in project.images],
+                           np.asarray(valid).sum(axis=(1, 2)))
     stack = RemappedStack(np.asarray(values), np.asarray(valid), np.array([im.time for im in project.images]),
                           tuple(im.name for im in project.images), project.epoch, project.grid, project.grid_spec,
                           models, covariance, geolocation_sigma(models, covariance, project.grid))
@@ -241,6 +262,9 @@ def remap_report(stack: RemappedStack, rectifications, method: str, fill: int) -
     for r in rectifications:
         lines.append(f"  {r.name}: scan model given ({r.model.direction}bound)" if not r.control else
                      f"  {r.name}: {r.model.direction}bound, {r.control} control points, σ̂0 {r.sigma0:.2f}")
+    missing = [name for name, valid in zip(stack.names, stack.valid, strict=True) if not valid.any()]
+    if missing:
+        lines.append(f"  note: no pixel of {', '.join(missing)} falls in the grid (their remapped images are empty)")
     for r in rectifications:
         if r.north.size:
             distance = np.hypot(r.north, r.east) / 1000
@@ -302,8 +326,12 @@ def load_models(path: str | os.PathLike, project: SequenceProject):
     path = Path(path)
     if not path.exists():
         raise SeaiceError(f"{path}: file not found (run `seaice adjust` first)")
-    with np.load(path) as data:
-        stored = {k: data[k] for k in data.files}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stored = {k: data[k] for k in data.files}
+    except (zipfile.BadZipFile, EOFError, ValueError, OSError) as error:
+        raise SeaiceError(f"{path}: truncated or not a models file of `seaice adjust` ({error}); run `seaice adjust` "
+                          "again") from None
     missing = [k for k in _MODEL_FILE if k not in stored]
     if missing:
         raise SeaiceError(f"{path}: no {', '.join(missing)}: not a models file of `seaice adjust`")
@@ -325,6 +353,8 @@ def load_models(path: str | os.PathLike, project: SequenceProject):
 def load_remapped(directory: str | os.PathLike, pixels: dict | None = None) -> RemappedStack:
     """The stack written by :func:`run_remap` into ``directory``, with its grid and scan models rebuilt; ``pixels``:
     arrays taken instead of the stored ones of those names (e.g. memory maps of ``values``, ``valid``, ``sigma``)."""
+    if Path(directory).is_file():
+        raise SeaiceError(f"{directory}: a file, not the folder written by `seaice remap`; give that folder")
     path = Path(directory) / "remapped.npz"
     if not path.exists():
         raise SeaiceError(f"{path}: file not found (run `seaice remap` first)")
@@ -594,6 +624,7 @@ def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None,
     options = options or TrackingOptions()
     if len(stack.names) < 2:
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
+    check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
     rows, columns = grid_points(stack.grid.shape, options)
     on_land = None if land is None else np.asarray(land, bool)[rows.astype(int), columns.astype(int)]
     lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
@@ -710,6 +741,7 @@ class FloeKinematics:
         deformation: ``(time, interval, rates)`` (s, s, the triangles' strain rates) per fix time with at least
             three floes.
         projection: the map projection of ``x``, ``y`` (for the maps' coastline and graticule).
+        notes: what was left out and why (implausible velocities, points on one line, degenerate triangles).
     """
 
     records: FloeRecords
@@ -721,19 +753,24 @@ class FloeKinematics:
     box_size: float
     deformation: tuple[tuple[float, float, Deformation], ...]
     projection: object = None
+    notes: tuple[str, ...] = ()
 
 
-def _deformations(v: Velocities, velocity_sigma: float | None):
-    """Deformation of the floes' Delaunay triangles at every fix time with at least three floes."""
-    out = []
+def _deformations(v: Velocities, velocity_sigma: float | None, epoch: str):
+    """Deformation of the floes' Delaunay triangles at every fix time with at least three floes (times whose floes
+    lie on one line have none), and notes on what was left out."""
+    out, notes = [], []
     for t in np.unique(v.time):
         at = v.time == t
         if at.sum() < 3:
             continue
         sigma = velocity_sigma if velocity_sigma is not None else np.sqrt(2) * 1000.0 / v.interval[at]
         rates = deformation(np.stack([v.x[at], v.y[at]], 1), np.stack([v.u_grid[at], v.v_grid[at]], 1), sigma)
-        out.append((float(t), float(v.interval[at][0]), rates))
-    return tuple(out)
+        if rates.note:
+            notes.append(f"deformation at {time_after(epoch, t)}: {rates.note}")
+        if len(rates.area):
+            out.append((float(t), float(v.interval[at][0]), rates))
+    return tuple(out), tuple(notes)
 
 
 def floe_kinematics(records: FloeRecords, projection: str = "nsidc-north", box_size: float = 50_000.0,
@@ -747,10 +784,13 @@ def floe_kinematics(records: FloeRecords, projection: str = "nsidc-north", box_s
     """
     metric = named_projection(projection, (np.degrees(records.latitude[0]), np.degrees(records.longitude[0])))
     x, y = (np.asarray(a) for a in metric.forward(records.latitude, records.longitude))
-    v = velocities(records.floe, records.time, x, y, metric)
+    v, implausible = plausible_velocities(velocities(records.floe, records.time, x, y, metric),
+                                          epoch=records.epoch)
     origin = (np.floor(v.x.min() / box_size) * box_size, np.floor(v.y.min() / box_size) * box_size)
+    rates, notes = _deformations(v, velocity_sigma, records.epoch)
     return FloeKinematics(records, x, y, v, box_averages(v.x, v.y, v.u_grid, v.v_grid, box_size, origin),
-                          box_time_series(v, box_size, origin), box_size, _deformations(v, velocity_sigma), metric)
+                          box_time_series(v, box_size, origin), box_size, rates, metric,
+                          (implausible, *notes) if implausible else notes)
 
 
 def _deformation_columns(result: FloeKinematics) -> dict:
@@ -803,9 +843,11 @@ def kinematics_report(result: FloeKinematics) -> str:
     v = result.velocities
     speed = v.speed * 86.4
     triangles = sum(len(rates.area) for *_, rates in result.deformation)
-    return (f"{len(v.floe)} velocities of {len(set(result.records.floe.tolist()))} floes: median speed "
-            f"{np.median(speed):.1f} km/day (max {speed.max():.1f}); {len(result.boxes.x)} boxes of "
-            f"{result.box_size / 1000:.0f} km; {triangles} deformation triangles")
+    return "\n".join([
+        f"{len(v.floe)} velocities of {len(set(result.records.floe.tolist()))} floes: median speed "
+        f"{np.median(speed):.1f} km/day (max {speed.max():.1f}); {len(result.boxes.x)} boxes of "
+        f"{result.box_size / 1000:.0f} km; {triangles} deformation triangles",
+        *(f"  note: {note}" for note in result.notes)])
 
 
 def run_velocities(records_path: str | os.PathLike, out_dir: str | os.PathLike, projection: str = "nsidc-north",

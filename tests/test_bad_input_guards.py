@@ -1,0 +1,188 @@
+"""Guards that hold (issue 31): inputs that used to run silently to a wrong result, or stop with a traceback, are
+refused with an error naming the file, point, image or grid (before anything is written), or run with a note saying
+what was left out."""
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from seaice_jax.adjust.orbit_fit import check_point_errors, fit_scan_model
+from seaice_jax.cli import main
+from seaice_jax.drift.kinematics import deformation
+from seaice_jax.errors import RankDeficiencyError, SeaiceError
+from seaice_jax.geometry.scan import ScanModel, satellite_orbit
+from seaice_jax.io.products import write_geotiff
+from seaice_jax.io.sequence import MODEL_KEYS, make_grid, read_sequence
+from seaice_jax.sensors.control import ControlPoints
+from seaice_jax.simulate.satellite import noaa_pass
+from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap, run_track
+
+SIZE = 32
+HEAD = 'epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = {centre}\npixel_m = [5000.0, 5000.0]\nshape = [12, 12]\n'
+
+
+def _given_model(name: str, model: ScanModel, hour: int, file: str) -> str:
+    """An ``[[image]]`` table giving ``model`` (no control points: nothing is fitted)."""
+    values = [float(getattr(model, f)) for f in ("scanner_angle_span", "subtrack_pixel", "orbital_angle_first",
+                                                  "orbital_angle_span", "ascending_node")]
+    keys = "\n".join(f"{key} = {value if key == 'subtrack_pixel' else float(np.degrees(value))!r}"
+                     for key, value in zip(MODEL_KEYS, values, strict=True))
+    return (f'[[image]]\nname = "{name}"\ntime = "1983-03-08T{hour:02d}:00:00Z"\nfile = "{file}"\n'
+            f'satellite = "NOAA-7"\naltitude_m = 0.0\ndirection = "{model.direction}"\n{keys}\n')
+
+
+def _project(folder, centre="[74.0, -85.0]", image_file="a.npy"):
+    """Two small images near 74° N 85° W with given scan models, and a 60 km grid centred on ``centre``."""
+    rng = np.random.default_rng(5)
+    for name in ("a.npy", "b.npy"):
+        np.save(folder / name, rng.uniform(0.0, 1.0, (SIZE, SIZE)))
+    models = [noaa_pass(direction, SIZE, np.radians(74.0), np.radians(-85.0)) for direction in ("south", "north")]
+    path = folder / "sequence.toml"
+    path.write_text(HEAD.format(centre=centre) + _given_model("A", models[0], 1, image_file)
+                    + _given_model("B", models[1], 22, "b.npy"))
+    return path
+
+
+def test_a_grid_that_misses_every_image_is_named_with_the_images(tmp_path, capsys):
+    project = _project(tmp_path, centre="[80.0, 100.0]")
+    out = tmp_path / "remapped"
+    with pytest.raises(SeaiceError, match=r"sequence.toml: \[grid\] \(nsidc-north, centre_deg \[80.0, 100.0\], 12 x 12 "
+                                          r"pixels of 5000.0 x 5000.0 m\) misses every image: no pixel of A, B falls "
+                                          r"in it"):
+        run_remap(project, out, progress=False)
+    assert main(["remap", str(project), "--out", str(out), "-q"]) == 2
+    assert "misses every image" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_truncated_models_and_image_files_are_named(tmp_path, capsys):
+    project = _project(tmp_path)
+    (tmp_path / "models.npz").write_bytes(b"PK\x03\x04 a zip cut short")
+    with pytest.raises(SeaiceError, match=r"models.npz: truncated or not a models file of `seaice adjust`"):
+        run_remap(project, tmp_path / "out", progress=False, models_path=tmp_path / "models.npz")
+    assert not (tmp_path / "out").exists()
+    grid = make_grid(**{**SIMULATED_GRID, "shape": [SIZE, SIZE]})
+    write_geotiff(tmp_path / "full.tif", np.zeros((SIZE, SIZE)), grid)
+    (tmp_path / "a.tif").write_bytes((tmp_path / "full.tif").read_bytes()[:-1000])
+    with pytest.raises(SeaiceError, match=r"a.tif: truncated or not a TIFF image"):
+        read_sequence(_project(tmp_path, image_file="a.tif"))
+    assert main(["remap", str(tmp_path / "sequence.toml"), "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "a.tif: truncated or not a TIFF image" in error and "Traceback" not in error
+
+
+def _two_geotiffs(folder):
+    grid = make_grid(**{**SIMULATED_GRID, "shape": [40, 40]})
+    image = np.random.default_rng(2).uniform(0.0, 1.0, (40, 40))
+    return [write_geotiff(folder / f"{name}.tif", image, grid) for name in ("first", "second")]
+
+
+def test_images_too_close_in_time_to_measure_drift_are_refused(tmp_path):
+    """Two images 1 ms apart gave drift speeds of ~6e8 km/day: refused, naming both images and the interval."""
+    with pytest.raises(SeaiceError, match=r"images first and second are 0.001 s apart: the smallest displacement the "
+                                          r"tracking resolves \(0.1 px of 2500 m\) would already be 2.16e\+07 km/day, "
+                                          r"beyond the fastest sea-ice drift \(173 km/day\)"):
+        run_track(_two_geotiffs(tmp_path), tmp_path / "drift", times=["2024-03-01T06:00:00.000Z",
+                                                                      "2024-03-01T06:00:00.001Z"], progress=False)
+    assert not (tmp_path / "drift").exists()
+
+
+def test_a_drift_netcdf_given_to_track_is_named(tmp_path, capsys):
+    """The tool's own drift NetCDF (an IndexError from GDAL's band 1) is named as not a GeoTIFF."""
+    path = tmp_path / "drift_A_B.nc"
+    xr.Dataset({"dX": (("y", "x"), np.zeros((3, 3))), "dY": (("y", "x"), np.zeros((3, 3)))}).to_netcdf(path)
+    with pytest.raises(SeaiceError, match=r"drift_A_B.nc: not a GeoTIFF \(GDAL reads it as netCDF\)"):
+        run_track([path, path], tmp_path / "out", progress=False)
+    assert main(["track", str(path), "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "drift_A_B.nc: a file, not the folder written by `seaice remap`" in error and "Traceback" not in error
+    assert not (tmp_path / "out").exists()
+
+
+RECORDS = "floe_id,time,image,pixel,scan,latitude,longitude\n"
+
+
+def _records(path, fixes):
+    path.write_text(RECORDS + "".join(f"F{floe},{time},I{image},1,1,{lat},{lon}\n"
+                                      for floe, time, image, lat, lon in fixes))
+    return path
+
+
+def test_velocities_of_floes_on_a_line_are_kept_with_a_note(tmp_path, capsys):
+    """Floes on one line (the EPSG:3413 grid's meridian, 45° W, is a straight line) give no deformation triangles:
+    the velocities and boxes are written, with a note, instead of the whole command failing."""
+    fixes = [(k, time, image, 74 + k / 10 + image / 100, -45.0) for k in range(1, 5)
+             for image, time in ((1, "1983-03-08T12:00:00Z"), (2, "1983-03-09T12:00:00Z"))]
+    out = tmp_path / "velocities"
+    assert main(["velocities", str(_records(tmp_path / "line.csv", fixes)), "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "4 velocities of 4 floes" in report and "0 deformation triangles" in report
+    assert "note: deformation at 1983-03-09T00:00:00Z: the 4 points lie on one line (or coincide): no triangles" \
+        in report
+    assert (out / "velocities.csv").is_file() and not (out / "deformation.csv").exists()
+    rates = deformation(np.array([[0.0, 0.0], [1000.0, 0.0], [0.0, 1000.0], [500.0, 1e-7]]), np.ones((4, 2)), 0.01)
+    assert rates.note == "1 of 3 triangles left out: their corners lie on one line" and len(rates.area) == 2
+
+
+def test_implausible_velocities_are_left_out_with_a_note_or_refused(tmp_path, capsys):
+    day, next_day = "1983-03-08T12:00:00Z", "1983-03-09T12:00:00Z"
+    fixes = [(k, t, i, 74 + k / 10, -80.0 - k / 10 - i / 100) for k in range(1, 4) for i, t in ((1, day),
+                                                                                               (2, next_day))]
+    fixes.append((3, "1983-03-09T12:00:00.001Z", 3, 74.4, -80.0))  # 1 ms after its previous fix, 20 km away
+    assert main(["velocities", str(_records(tmp_path / "one.csv", fixes)), "--out", str(tmp_path / "v1")]) == 0
+    assert ("note: 1 of 4 velocities beyond the fastest sea-ice drift (173 km/day) left out (a wrong time or "
+            "position); the fastest: floe F3:") in capsys.readouterr().out
+    close = [(k, f"1983-03-08T12:00:00.00{i}Z", i, 74 + k / 10, -80.0 - i / 100) for k in range(1, 4) for i in (1, 2)]
+    assert main(["velocities", str(_records(tmp_path / "all.csv", close)), "--out", str(tmp_path / "v2")]) == 2
+    assert "all 3 velocities are beyond the fastest sea-ice drift (173 km/day)" in capsys.readouterr().err
+    assert not (tmp_path / "v2").exists()
+
+
+FIGURE_3_3_ORBIT = satellite_orbit("NOAA-7", altitude=0.0, earth_day=1440 * 60.0)
+
+
+def _control(model, pixel, scan):
+    lat, lon = (np.asarray(a) for a in model.forward(np.asarray(pixel, float), np.asarray(scan, float)))
+    return ControlPoints(np.asarray(pixel, float), np.asarray(scan, float), lat, lon, 500.0,
+                         [f"S{k}" for k in range(len(pixel))])
+
+
+@pytest.mark.parametrize(("pixel", "scan", "message", "undetermined"), [
+    ([50, 150, 250, 350, 450], [200.2] * 5, r"lie on one scan line \(200.2\)", {"orbital_angle_span"}),
+    ([120] * 4, [50, 150, 300, 450], r"lie on one pixel column \(120\)", {"scanner_angle_span", "subtrack_pixel"}),
+    ([100, 200, 300, 400], [100, 200.3, 300, 400], r"lie on one line of the image \(pixel, scan\)",
+     {"scanner_angle_span", "orbital_angle_span"}),
+])
+@pytest.mark.parametrize("method", ["gauss-newton", "appendix_c"])
+def test_control_points_on_one_line_are_refused_by_both_methods(pixel, scan, message, undetermined, method):
+    """Appendix C answered a wrong span and Gauss-Newton a NumPy division warning (or σ of 1677°) for these."""
+    truth = noaa_pass("south", 512, np.radians(74.0), np.radians(-80.0))
+    with pytest.raises(RankDeficiencyError, match=rf"control points S0, S1, S2, S3.* {message}, within 0.5 px: they "
+                                                  r"cannot determine .* apart") as info:
+        fit_scan_model(_control(truth, pixel, scan), truth.orbit, method=method)
+    assert undetermined <= set(info.value.parameters)
+
+
+def test_rectify_refuses_collinear_points_without_a_warning(tmp_path, capsys):
+    path = tmp_path / "column.csv"
+    path.write_text("id,name,pixel,scan,lat,lon\n1,A,100,100,75.0,-80.0\n2,B,100,200,74.5,-80.5\n"
+                    "3,C,100,300,74.0,-81.0\n4,D,100,400,73.5,-81.5\n")
+    assert main(["rectify", str(path), "--satellite", "NOAA-7", "--altitude", "0"]) == 2
+    error = capsys.readouterr().err
+    assert "control points 1, 2, 3, 4 lie on one pixel column (100)" in error
+    assert "Warning" not in error and "Traceback" not in error
+
+
+def test_an_image_across_the_orbits_apex_over_the_pole_is_fitted():
+    """A pass whose image straddles the orbit's northernmost point, the pole inside its swath, was refused ("no
+    southbound pass puts all control points on one side of the orbit's apex"); it is fitted to its points."""
+    truth = ScanModel(np.radians(30.0), 16.0, np.radians(85.0), np.radians(10.0), 0.0, FIGURE_3_3_ORBIT, "south", 32,
+                      32)
+    rng = np.random.default_rng(3)
+    control = _control(truth, rng.uniform(1, 32, 12), rng.uniform(1, 32, 12))
+    pole = np.array([float(a) for a in truth.inverse(np.radians(89.999), 0.0)])
+    assert np.all((pole > 1) & (pole < 32))  # the pole lies inside the image (pixel 6.8, scan line 16.5)
+    fit = fit_scan_model(control, FIGURE_3_3_ORBIT, direction="south", n_pixels=32, n_scans=32)
+    assert fit.rms_km < 1e-3
+    check = _control(truth, rng.uniform(1, 32, 20), rng.uniform(1, 32, 20))
+    assert np.max(check_point_errors(fit.model, check)) < 1e-3  # km: the whole image, not only its points
