@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from seaice_jax.adjust.lsq import Observations, least_squares
     from seaice_jax.adjust.orbit_fit import fit_scan_model
     from seaice_jax.adjust.problem import Problem, ResidualBlock
+    from seaice_jax.adjust.radar_timing import GroundPoints, RadarMeasurements, adjust_radar_timing
     from seaice_jax.adjust.sequence_block import adjust_sequence
     from seaice_jax.adjust.variance import robust_adjustment, variance_components
     from seaice_jax.geometry.earth import (
@@ -68,10 +69,13 @@ if TYPE_CHECKING:
         incidence_angle,
     )
     from seaice_jax.geometry.scan import SATELLITES, SCAN_UNKNOWNS, Orbit, SatelliteOrbit, ScanModel, satellite_orbit
+    from seaice_jax.geometry.state_vectors import StateVectorOrbit
     from seaice_jax.geometry.trajectory import CircularTrajectory, Trajectory
+    from seaice_jax.geometry.zero_doppler import ellipsoid_ground_point, ellipsoid_imaging_time_and_range
     from seaice_jax.imagery.remap import remap
     from seaice_jax.imagery.ties import find_ties
     from seaice_jax.imagery.tracking import TrackingOptions, track
+    from seaice_jax.io.sentinel1 import Sentinel1Annotation, read_annotation
     from seaice_jax.sensors.control import ControlPoints, ImageObservations
     from seaice_jax.sensors.navigation import NavigationSpline
     from seaice_jax.simulate.satellite import simulate_sequence
@@ -84,6 +88,7 @@ _SOURCES = {
     "seaice_jax.adjust.lsq": ("Observations", "least_squares"),
     "seaice_jax.adjust.orbit_fit": ("fit_scan_model",),
     "seaice_jax.adjust.problem": ("Problem", "ResidualBlock"),
+    "seaice_jax.adjust.radar_timing": ("GroundPoints", "RadarMeasurements", "adjust_radar_timing"),
     "seaice_jax.adjust.sequence_block": ("adjust_sequence",),
     "seaice_jax.adjust.variance": ("variance_components", "robust_adjustment"),
     "seaice_jax.geometry.earth": ("EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
@@ -97,7 +102,10 @@ _SOURCES = {
                                           "imaging_time_and_range", "incidence_angle"),
     "seaice_jax.geometry.scan": ("SATELLITES", "SCAN_UNKNOWNS", "Orbit", "SatelliteOrbit", "ScanModel",
                                  "satellite_orbit"),
+    "seaice_jax.geometry.state_vectors": ("StateVectorOrbit",),
     "seaice_jax.geometry.trajectory": ("CircularTrajectory", "Trajectory"),
+    "seaice_jax.geometry.zero_doppler": ("ellipsoid_ground_point", "ellipsoid_imaging_time_and_range"),
+    "seaice_jax.io.sentinel1": ("Sentinel1Annotation", "read_annotation"),
     "seaice_jax.sensors.control": ("ControlPoints", "ImageObservations"),
     "seaice_jax.sensors.navigation": ("NavigationSpline",),
     "seaice_jax.simulate.satellite": ("simulate_sequence",),
@@ -134,6 +142,9 @@ __all__ = [
     # radar: range-Doppler and trajectories
     "LEFT", "RIGHT", "LookSide", "doppler_residual", "ground_point", "imaging_time_and_range", "incidence_angle",
     "Trajectory", "CircularTrajectory", "NavigationSpline",
+    # spaceborne radar: zero-Doppler on the WGS84 ellipsoid, Sentinel-1 annotations, timing offsets
+    "StateVectorOrbit", "ellipsoid_ground_point", "ellipsoid_imaging_time_and_range", "Sentinel1Annotation",
+    "read_annotation", "GroundPoints", "RadarMeasurements", "adjust_radar_timing",
     # satellite images: the great-circle scan model
     "SATELLITES", "SCAN_UNKNOWNS", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit",
     # observations and estimation
