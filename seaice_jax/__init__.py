@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from seaice_jax.adjust.lsq import Observations, least_squares
     from seaice_jax.adjust.orbit_fit import fit_scan_model
     from seaice_jax.adjust.problem import Problem, ResidualBlock
-    from seaice_jax.adjust.radar_timing import GroundPoints, RadarMeasurements, adjust_radar_timing
+    from seaice_jax.adjust.radar_timing import GroundPoints, RadarMeasurements, TimingOptions, adjust_radar_timing
     from seaice_jax.adjust.sequence_block import adjust_sequence
     from seaice_jax.adjust.variance import robust_adjustment, variance_components
     from seaice_jax.geometry.earth import (
@@ -88,7 +88,7 @@ _SOURCES = {
     "seaice_jax.adjust.lsq": ("Observations", "least_squares"),
     "seaice_jax.adjust.orbit_fit": ("fit_scan_model",),
     "seaice_jax.adjust.problem": ("Problem", "ResidualBlock"),
-    "seaice_jax.adjust.radar_timing": ("GroundPoints", "RadarMeasurements", "adjust_radar_timing"),
+    "seaice_jax.adjust.radar_timing": ("GroundPoints", "RadarMeasurements", "TimingOptions", "adjust_radar_timing"),
     "seaice_jax.adjust.sequence_block": ("adjust_sequence",),
     "seaice_jax.adjust.variance": ("variance_components", "robust_adjustment"),
     "seaice_jax.geometry.earth": ("EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
@@ -144,7 +144,7 @@ __all__ = [
     "Trajectory", "CircularTrajectory", "NavigationSpline",
     # spaceborne radar: zero-Doppler on the WGS84 ellipsoid, Sentinel-1 annotations, timing offsets
     "StateVectorOrbit", "ellipsoid_ground_point", "ellipsoid_imaging_time_and_range", "Sentinel1Annotation",
-    "read_annotation", "GroundPoints", "RadarMeasurements", "adjust_radar_timing",
+    "read_annotation", "GroundPoints", "RadarMeasurements", "TimingOptions", "adjust_radar_timing",
     # satellite images: the great-circle scan model
     "SATELLITES", "SCAN_UNKNOWNS", "Orbit", "SatelliteOrbit", "ScanModel", "satellite_orbit",
     # observations and estimation

@@ -9,7 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.radar_timing import GroundPoints, RadarMeasurements, adjust_radar_timing, timing_solver
+from seaice_jax.adjust.radar_timing import (
+    GroundPoints,
+    RadarMeasurements,
+    TimingOptions,
+    adjust_radar_timing,
+    timing_solver,
+)
 from seaice_jax.errors import RankDeficiencyError
 from seaice_jax.geometry.zero_doppler import ellipsoid_imaging_time_and_range
 from seaice_jax.io.sentinel1 import read_annotation
@@ -19,6 +25,7 @@ PRODUCT = "20210401t052623-20210401t052648-026269-032297"
 TRUE_TIME_OFFSET = np.array([2.0e-4, -1.5e-4])  # s: about 1.5 m and 1.1 m along track
 TRUE_RANGE_OFFSET = np.array([1.8, -0.7])  # m
 TIME_SIGMA, RANGE_SIGMA = 2e-5, 0.5
+OPTIONS = TimingOptions(TIME_SIGMA, RANGE_SIGMA)
 
 
 def _scene():
@@ -82,7 +89,7 @@ def test_offsets_recovered_with_ties(scene):
     control = _measured(orbits, control_rows, control_points, rng)
     ties = _measured(orbits, tie_rows, tie_points, rng)
     start = GroundPoints(tie_points.latitude + 2e-5, tie_points.longitude - 3e-5, tie_points.height)  # ~100-200 m
-    result = adjust_radar_timing(orbits, control, control_points, ties, start, TIME_SIGMA, RANGE_SIGMA)
+    result = adjust_radar_timing(orbits, control, control_points, ties, start, OPTIONS)
     assert bool(result.converged)
     sigma = result.standard_deviations()
     for image in (0, 1):
@@ -101,7 +108,7 @@ def test_predicted_sigma_matches_monte_carlo_and_w_test(scene):
     orbits, control_rows, control_points, _, _ = scene
     rng = np.random.default_rng(2024)
     solver, _, args = timing_solver(orbits, _measured(orbits, control_rows, control_points, rng),
-                                           control_points, time_sigma=TIME_SIGMA, range_sigma=RANGE_SIGMA)
+                                   control_points, options=OPTIONS)
     runs = 200
     exact = _measured(orbits, control_rows, control_points, _ZeroNoise())
     shape = (runs, exact.azimuth_time.size)
@@ -138,7 +145,7 @@ def test_blunder_is_flagged(scene):
     ranges = control.slant_range.copy()
     ranges[5] += 12 * RANGE_SIGMA
     blundered = RadarMeasurements(control.image, control.point, control.azimuth_time, ranges)
-    result = adjust_radar_timing(orbits, blundered, control_points, time_sigma=TIME_SIGMA, range_sigma=RANGE_SIGMA)
+    result = adjust_radar_timing(orbits, blundered, control_points, options=OPTIONS)
     worst = result.flagged()[0]
     assert (worst.group, worst.row) == ("control_range", 5)
 
@@ -149,7 +156,7 @@ def test_ties_alone_have_no_datum_unless_priors(scene):
     no_control = RadarMeasurements(np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0))
     with pytest.raises(RankDeficiencyError, match="offset"):
         adjust_radar_timing(orbits, no_control, GroundPoints(np.zeros(0), np.zeros(0), np.zeros(0)), ties,
-                            tie_points, TIME_SIGMA, RANGE_SIGMA)
+                            tie_points, OPTIONS)
     result = adjust_radar_timing(orbits, no_control, GroundPoints(np.zeros(0), np.zeros(0), np.zeros(0)), ties,
-                                 tie_points, TIME_SIGMA, RANGE_SIGMA, prior_time_sigma=3e-4, prior_range_sigma=2.0)
+                                 tie_points, TimingOptions(TIME_SIGMA, RANGE_SIGMA, 3e-4, 2.0))
     assert bool(result.converged)

@@ -67,6 +67,23 @@ class GroundPoints:
     height: np.ndarray
 
 
+@dataclass(frozen=True)
+class TimingOptions:
+    """The stochastic model of :func:`adjust_radar_timing`.
+
+    Attributes:
+        time_sigma: σ of a measured azimuth time, s (pointing σ in lines × the line interval).
+        range_sigma: σ of a measured slant range, m (pointing σ in pixels × the range pixel spacing).
+        prior_time_sigma, prior_range_sigma: prior σ of every image's offsets (s, m) about zero, e.g. the orbit's
+            stated along-track accuracy / ground speed and its radial accuracy; ``None``: no prior.
+    """
+
+    time_sigma: float = 1e-5
+    range_sigma: float = 1.0
+    prior_time_sigma: float | None = None
+    prior_range_sigma: float | None = None
+
+
 def _stacked(orbits):
     padded = [orbit.padded(max(ORBIT_BUCKET, orbit.times.size)) for orbit in orbits]
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *padded)
@@ -102,10 +119,7 @@ def timing_solver(
     control_points: GroundPoints,
     ties: RadarMeasurements | None = None,
     tie_points: GroundPoints | None = None,
-    time_sigma=1e-5,
-    range_sigma=1.0,
-    prior_time_sigma=None,
-    prior_range_sigma=None,
+    options: TimingOptions = TimingOptions(),
 ) -> tuple[Solver, dict, dict]:
     """Set up the offset adjustment: ``(solver, observed, args)``; ``checked_solve(solver, observed, args)`` adjusts
     (see :func:`adjust_radar_timing`); ``jax.vmap`` the solver over realizations of ``observed`` for Monte Carlo."""
@@ -139,14 +153,15 @@ def timing_solver(
     observed = {"control_time": jnp.asarray(control.azimuth_time, float),
                 "control_range": jnp.asarray(control.slant_range, float),
                 "tie_time": jnp.asarray(ties.azimuth_time, float), "tie_range": jnp.asarray(ties.slant_range, float)}
-    sigma = {"control_time": time_sigma, "control_range": range_sigma, "tie_time": time_sigma,
-             "tie_range": range_sigma}
+    sigma = {"control_time": options.time_sigma, "control_range": options.range_sigma,
+             "tie_time": options.time_sigma, "tie_range": options.range_sigma}
     observations = {group: Observations(values, sigma[group]) for group, values in observed.items()}
     prior_sigma = None
-    if prior_time_sigma is not None or prior_range_sigma is not None:
-        prior_sigma = {"azimuth_offset": jnp.full(n_images, np.inf if prior_time_sigma is None else prior_time_sigma),
-                       "range_offset": jnp.full(n_images, np.inf if prior_range_sigma is None else prior_range_sigma),
-                       "tie_latitude": None, "tie_longitude": None}
+    if options.prior_time_sigma is not None or options.prior_range_sigma is not None:
+        time_prior, range_prior = (np.inf if v is None else v for v in (options.prior_time_sigma,
+                                                                          options.prior_range_sigma))
+        prior_sigma = {"azimuth_offset": jnp.full(n_images, time_prior),
+                       "range_offset": jnp.full(n_images, range_prior), "tie_latitude": None, "tie_longitude": None}
     solver = make_solver(_model, parameters, observations, prior_sigma=prior_sigma, args=args, max_steps=20)
     return solver, observed, args
 
@@ -157,10 +172,7 @@ def adjust_radar_timing(
     control_points: GroundPoints,
     ties: RadarMeasurements | None = None,
     tie_points: GroundPoints | None = None,
-    time_sigma=1e-5,
-    range_sigma=1.0,
-    prior_time_sigma=None,
-    prior_range_sigma=None,
+    options: TimingOptions = TimingOptions(),
 ) -> Adjustment:
     """Estimate each image's azimuth-time offset (s) and slant-range offset (m), and the tie points' positions.
 
@@ -168,10 +180,7 @@ def adjust_radar_timing(
         orbits: one orbit per image (times from one common epoch).
         control, control_points: measurements of known ground points.
         ties, tie_points: measurements of unknown ground points (two or more images each) and their start values.
-        time_sigma: σ of a measured azimuth time, s (pointing σ in lines × the line interval).
-        range_sigma: σ of a measured slant range, m (pointing σ in pixels × the range pixel spacing).
-        prior_time_sigma, prior_range_sigma: prior σ of every offset (s, m) about zero, e.g. the orbit's stated
-            along-track accuracy / ground speed and its radial accuracy; ``None``: no prior.
+        options: the measurements' σ and the offsets' priors.
 
     Returns:
         The engine's :class:`~seaice_jax.adjust.engine.Adjustment`: parameters ``azimuth_offset`` ``(images,)``,
@@ -182,6 +191,5 @@ def adjust_radar_timing(
     Raises:
         RankDeficiencyError: naming the offsets the measurements cannot determine (ties without control or priors).
     """
-    solver, observed, args = timing_solver(orbits, control, control_points, ties, tie_points, time_sigma,
-                                           range_sigma, prior_time_sigma, prior_range_sigma)
+    solver, observed, args = timing_solver(orbits, control, control_points, ties, tie_points, options)
     return checked_solve(solver, observed, args)
