@@ -206,7 +206,9 @@ def _track(args) -> int:
     from seaice_jax.workflows.image_sequence import run_track
 
     options = TrackingOptions(patch=args.patch, search=args.search, spacing=args.spacing,
-                              min_correlation=args.min_correlation, first_guess=args.first_guess)
+                              min_correlation=args.min_correlation, first_guess=args.first_guess,
+                              sigma_floor=args.tracking_sigma)
+    land = None if args.land == "none" else args.land
     sources = args.remapped
     geotiffs = len(sources) > 1 or Path(sources[0]).suffix.lower() in (".tif", ".tiff")
     if not geotiffs and args.times:
@@ -214,14 +216,12 @@ def _track(args) -> int:
     if args.workers or args.scheduler:  # on Dask (imported only here)
         from seaice_jax.workflows.archive import run_track_archive
 
-        step = run_track_archive(sources if geotiffs else sources[0], args.out, options,
-                                 tracking_sigma=args.tracking_sigma, progress=_progress(args), layout=args.layout,
-                                 overwrite=args.overwrite, land=args.land, workers=args.workers,
+        step = run_track_archive(sources if geotiffs else sources[0], args.out, options, progress=_progress(args),
+                                 layout=args.layout, overwrite=args.overwrite, land=land, workers=args.workers,
                                  scheduler=args.scheduler)
     else:
-        step = run_track(sources if geotiffs else sources[0], args.out, options, tracking_sigma=args.tracking_sigma,
-                         progress=_progress(args), layout=args.layout, overwrite=args.overwrite, times=args.times,
-                         land=args.land)
+        step = run_track(sources if geotiffs else sources[0], args.out, options, progress=_progress(args),
+                         layout=args.layout, overwrite=args.overwrite, times=args.times, land=land)
     _say(args, step.report)
     _say(args, f"wrote {len(step.files)} files into {args.out}")
     return EXIT_OK
@@ -379,10 +379,14 @@ def _sequence_commands(commands, common) -> None:
                        help="smallest normalised cross-correlation of a match kept as a good vector")
     track.add_argument("--first-guess", choices=["zero", "features"], default="zero",
                        help="features: ORB matches and a RANSAC similarity transform predict the motion")
-    track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.2,
-                       help="σ (standard deviation) of a tracked displacement, pixels")
-    track.add_argument("--land", help="land where no vector starts and no floe is followed: 'coastline' (GSHHG full "
-                                      "resolution, offline) or a .npy bool array on the grid")
+    track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.04,
+                       help="σ floor of a tracked displacement, pixels per axis: added in quadrature to each "
+                            "vector's σ from its correlation peak (calibrated: experiments/results/"
+                            "tracking_calibration.md)")
+    track.add_argument("--land", default="coastline",
+                       help="land: a vector that starts or ends on it is flagged 'on land' (never good) and no floe is "
+                            "followed onto it: 'coastline' (GSHHG full resolution, offline), a .npy bool array on the "
+                            "grid, or 'none' (no land mask)")
     track.add_argument("--layout", choices=["project", "osisaf"], default="project",
                        help="osisaf: also write each pair as drift_<a>_<b>_osisaf.nc in the layout of the OSI SAF "
                             "(EUMETSAT Ocean and Sea Ice Satellite Application Facility) low-resolution drift "

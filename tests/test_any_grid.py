@@ -73,7 +73,8 @@ def tracked(tmp_path_factory):
     second[:4, :4] = -9999.0  # no data there
     a = _write_geotiff(root / "a.tif", first, "EPSG:3995", LEFT, TOP, PIXEL, "2024:03:01 06:00:00")
     b = _write_geotiff(root / "b.tif", second, "EPSG:3995", LEFT, TOP, PIXEL, "2024:03:02 06:00:00")
-    assert main(["track", str(a), str(b), "--out", str(root / "drift"), "-q"]) == 0
+    # the grid lies on Greenland's land (GSHHG): without --land none every vector would be flagged "on land"
+    assert main(["track", str(a), str(b), "--out", str(root / "drift"), "--land", "none", "-q"]) == 0
     assert main(["velocities", str(root / "drift" / "floes.csv"), "--out", str(root / "velocities"), "--projection",
                  "EPSG:3995", "--box-km", "40", "-q"]) == 0
     return root
@@ -111,8 +112,8 @@ def test_track_reads_geotiffs_made_elsewhere_and_finds_their_shift(tracked):
     np.testing.assert_allclose(np.median(speeds["v_grid_m_s"]), -2 * pixel / 86400.0, rtol=0.03)
 
 
-UNITLESS = {"pixel", "scan", "count", "tie", "reference", "removed"}
-"""Numeric CSV columns that are their own unit (pixels, scan lines, counts) or flags."""
+UNITLESS = {"pixel", "scan", "count", "tie", "reference", "removed", "correlation"}
+"""Numeric CSV columns that are their own unit (pixels, scan lines, counts), flags or dimensionless."""
 UNIT_SUFFIXES = ("_m", "_km", "_s", "_per_s", "_m_s", "_deg", "_arcmin", "_mm", "_m2", "_m_per_mm")
 
 
@@ -139,7 +140,8 @@ def test_every_csv_names_the_unit_of_its_numbers(tracked, tmp_path):
     for path in written:
         assert _numeric_columns_without_unit(path) == [], path
     header = (tracked / "drift" / "floes.csv").read_text().splitlines()[0]
-    assert header == "floe_id,time,image,pixel,scan,latitude_deg,longitude_deg"
+    assert header == ("floe_id,time,image,pixel,scan,latitude_deg,longitude_deg,tracking_sigma_x_m,tracking_sigma_y_m,"
+                      "correlation")
     # the readers take degree columns with or without the unit: the same records either way
     from seaice_jax.drift.records import read_records
 

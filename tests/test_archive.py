@@ -21,7 +21,7 @@ from distributed import Client, LocalCluster
 
 from seaice_jax.cli import main
 from seaice_jax.errors import EXIT_USAGE, SeaiceError
-from seaice_jax.imagery.tracking import GOOD, NO_DATA
+from seaice_jax.imagery.tracking import GOOD, ON_LAND
 from seaice_jax.io.sequence import make_grid, read_sequence, write_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.simulate.satellite import simulate_sequence
@@ -220,11 +220,14 @@ def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
     assert len(dask.result.pairs) == IMAGES - 1 and dask.report == single.report
     for a, b in zip(single.result.pairs, dask.result.pairs, strict=True):
         assert a.first == b.first and a.interval == b.interval
-        for field in ("status", "x", "y", "dx", "dy", "sigma", "u_east", "v_north"):
+        for field in ("status", "x", "y", "dx", "dy", "sigma", "tracking_sigma", "correlation", "u_east", "v_north"):
             assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
-        assert np.any(b.status == GOOD) and np.any(b.status == NO_DATA)  # vectors at sea, none from land
+        assert np.any(b.status == GOOD) and np.any(b.status == ON_LAND)  # vectors at sea, none from land
     for field in ("floe", "image", "time", "latitude", "longitude", "pixel", "scan"):
         assert np.array_equal(getattr(single.result.records, field), getattr(dask.result.records, field)), field
+    for field in ("tracking_sigma", "correlation"):  # NaN at each floe's first fix
+        assert np.array_equal(getattr(single.result.records, field), getattr(dask.result.records, field),
+                              equal_nan=True), field
     assert len(set(dask.result.records.image.tolist())) > 2  # floes followed past the first pair
 
 

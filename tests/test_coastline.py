@@ -153,7 +153,7 @@ def test_a_bad_box_is_named(box, message):
 def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
     from scipy.ndimage import gaussian_filter
 
-    from seaice_jax.imagery.tracking import NO_DATA, TrackingOptions, grid_points
+    from seaice_jax.imagery.tracking import ON_LAND, TrackingOptions, grid_points
     from seaice_jax.workflows.image_sequence import RemappedStack, land_of_grid, track_sequence
 
     grid = MapGrid.centred(nsidc_polar_stereographic("north"), np.radians(74.25), np.radians(-84.0), 2500.0, 2500.0,
@@ -172,8 +172,10 @@ def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
     on_land = land[rows, columns]
     assert 0.2 < on_land.mean() < 0.8
     assert everywhere.pairs[0].good[on_land].mean() > 0.9  # textured land tracks as well as ice without the mask
-    assert (at_sea.pairs[0].status[on_land] == NO_DATA).all()  # with it, no vector starts on land
-    np.testing.assert_array_equal(at_sea.pairs[0].status[~on_land], everywhere.pairs[0].status[~on_land])
+    assert (at_sea.pairs[0].status[on_land] == ON_LAND).all()  # with it, every vector from land is "on land"
+    sea = at_sea.pairs[0].status[~on_land]
+    assert (sea == ON_LAND).sum() < 0.2 * sea.size  # at sea, only those that end on land join them
+    np.testing.assert_array_equal(sea[sea != ON_LAND], everywhere.pairs[0].status[~on_land][sea != ON_LAND])
     first = at_sea.records.time == 0.0
     x, y = grid.projection.forward(at_sea.records.latitude[first], at_sea.records.longitude[first])
     row, column = (np.round(np.asarray(a)).astype(int) for a in grid.to_pixel(x, y))

@@ -86,6 +86,7 @@ from seaice_jax.imagery.tracking import (
     TrackingOptions,
     correlation_peak,
     median_test,
+    peak_covariance,
     quadratic_peak,
 )
 
@@ -445,7 +446,7 @@ def _peak(template, window, radius, samples):
     offset, hessian = quadratic_peak(surface, i, j)
     if np.linalg.det(hessian) <= 0 or hessian[0, 0] >= 0:
         return FLAT_PEAK, *failed
-    covariance = 2.0 * max(1.0 - correlation, 0.0) / samples * np.linalg.inv(-hessian)
+    covariance = peak_covariance(correlation, hessian, samples)
     return GOOD, np.array([i - radius + offset[0], j - radius + offset[1]]), correlation, sharpness, covariance
 
 
@@ -486,7 +487,8 @@ def _match_pair(data_r, data_o, model_r, model_o, candidate, pixel, scan, search
     shift = np.nan_to_num(shift)
     status[(status == GOOD) & (correlation < options.min_correlation)] = LOW_CORRELATION
     status[(status == GOOD) & (sharpness < options.min_sharpness)] = FLAT_PEAK
-    tested = median_test(Displacements(scan, pixel, shift[:, 0], shift[:, 1], correlation, sharpness, status),
+    tested = median_test(Displacements(scan, pixel, shift[:, 0], shift[:, 1], correlation, sharpness, status,
+                                       np.sqrt(covariance[:, 0, 0]), np.sqrt(covariance[:, 1, 1])),
                          TrackingOptions(median_threshold=options.median_threshold, neighbours=options.neighbours))
     status = tested.status
     matched_p, matched_s = pixel + shift[:, 1], scan + shift[:, 0]

@@ -6,7 +6,17 @@ second image around a first guess (zero, given, or from feature matching): OpenC
 (``TM_CCOEFF_NORMED``), sub-pixel peak by a quadratic fit to the 3 x 3 neighbourhood of the maximum. Quality:
 peak correlation, peak sharpness (peak minus the best correlation more than two pixels from it) and the patch's
 contrast; vectors that disagree with their neighbours are rejected by the normalised median test (Westerweel &
-Scarano 2005, *Exp. Fluids* 39). Clouds are flat: their patches fail the contrast or correlation test.
+Scarano 2005, *Exp. Fluids* 39). Clouds are flat: their patches fail the contrast or correlation test. With a land
+mask, a vector that starts or ends on land is flagged :data:`ON_LAND` and never good: land does not drift, and its
+apparent motion is the two images' geolocation misfit.
+
+**Each vector's σ** comes from its correlation peak (:func:`peak_covariance`), as for least-squares matching with
+noise in both images (Förstner 1982; the same model as the tie points of :mod:`seaice_jax.imagery.ties`): the
+displacement's covariance is C = 2 (1 − ρ)/N_eff (−H)⁻¹ pixel², ρ the peak's NCC (1 − ρ ≈ the noise-to-signal
+variance ratio), H its curvature per pixel² (from the quadratic fit), N_eff = patch² / ``correlation_area`` the
+independent samples of the template; σ² = ``sigma_floor``² + diag C per axis (row, column). The two constants are
+calibrated by Monte Carlo against simulated sequences with known drift (``experiments/tracking_calibration.py``,
+seeds 0-29, checked on the fresh seeds 1000-1029: ``experiments/results/tracking_calibration.md``).
 
 Positions are 0-based (row, column) of the images' common :class:`~seaice_jax.geometry.projections.MapGrid`;
 :meth:`Displacements.in_map` gives metres and latitude/longitude.
@@ -20,11 +30,19 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import MapGrid
 
-GOOD, NO_DATA, LOW_CONTRAST, LOW_CORRELATION, FLAT_PEAK, AT_EDGE, OUTLIER = range(7)
+GOOD, NO_DATA, LOW_CONTRAST, LOW_CORRELATION, FLAT_PEAK, AT_EDGE, OUTLIER, ON_LAND = range(8)
 STATUS = {GOOD: "good", NO_DATA: "patch outside an image or missing data", LOW_CONTRAST: "patch without texture",
           LOW_CORRELATION: "correlation below threshold", FLAT_PEAK: "correlation peak not distinct",
-          AT_EDGE: "peak at the edge of the search window", OUTLIER: "disagrees with its neighbours"}
-"""``status`` codes of a displacement vector (written as ``status_flag`` in CF-NetCDF files)."""
+          AT_EDGE: "peak at the edge of the search window", OUTLIER: "disagrees with its neighbours",
+          ON_LAND: "start or end on land"}
+"""``status`` codes of a displacement vector (written as ``status_flag`` in CF-NetCDF files): the one vocabulary of
+the package's tracking and tie matching (:data:`seaice_jax.io.products.TO_OSISAF_STATUS` translates it)."""
+
+
+CORRELATION_AREA = 3.3
+"""Calibrated template pixels per independent sample of the tracking σ (``experiments/tracking_calibration.py``)."""
+SIGMA_FLOOR = 0.04
+"""Calibrated σ floor of a tracked displacement, pixels per axis (``experiments/tracking_calibration.py``)."""
 
 
 @dataclass(frozen=True)
@@ -38,6 +56,10 @@ class TrackingOptions:
             than two pixels away. min_contrast: standard deviation of the template (image units).
         median_threshold: normalised median test threshold; neighbours: vectors it compares with.
         first_guess: ``"zero"`` or ``"features"`` (ORB matches and a RANSAC similarity transform).
+        correlation_area: template pixels per independent sample of the σ model, N_eff = patch² /
+            correlation_area (module docstring). sigma_floor: pixels, the σ the correlation peak cannot see (the
+            quadratic fit's pull toward whole pixels), added in quadrature per axis. Both calibrated
+            (``experiments/results/tracking_calibration.md``).
     """
 
     patch: int = 15
@@ -49,6 +71,8 @@ class TrackingOptions:
     median_threshold: float = 3.0
     neighbours: int = 8
     first_guess: str = "zero"
+    correlation_area: float = CORRELATION_AREA
+    sigma_floor: float = SIGMA_FLOOR
 
     def __post_init__(self):
         if self.patch < 5 or self.patch % 2 == 0:
@@ -57,6 +81,10 @@ class TrackingOptions:
             raise SeaiceError(f"search must be at least 1 pixel, got {self.search}")
         if self.first_guess not in ("zero", "features"):
             raise SeaiceError(f"first_guess must be 'zero' or 'features', got {self.first_guess!r}")
+        if not self.correlation_area > 0:
+            raise SeaiceError(f"correlation_area must be > 0 pixels, got {self.correlation_area}")
+        if not self.sigma_floor >= 0:
+            raise SeaiceError(f"sigma_floor must be >= 0 pixels, got {self.sigma_floor}")
 
 
 @dataclass(frozen=True)
@@ -66,6 +94,8 @@ class Displacements:
     Attributes:
         row, column: ``(n,)`` start positions (0-based pixels of the grid). d_row, d_column: ``(n,)`` pixels.
         correlation, sharpness: ``(n,)`` peak NCC and its distinctness. status: ``(n,)`` :data:`STATUS` codes.
+        sigma_row, sigma_column: ``(n,)`` pixels, σ of ``d_row``, ``d_column`` from the correlation peak (module
+            docstring; NaN where not measured).
     """
 
     row: np.ndarray
@@ -75,6 +105,8 @@ class Displacements:
     correlation: np.ndarray
     sharpness: np.ndarray
     status: np.ndarray
+    sigma_row: np.ndarray
+    sigma_column: np.ndarray
 
     @property
     def good(self) -> np.ndarray:
@@ -168,8 +200,14 @@ def quadratic_peak(surface, i, j):
     return np.clip(-np.linalg.solve(hessian, [gi, gj]), -1.0, 1.0), hessian
 
 
+def peak_covariance(correlation: float, hessian: np.ndarray, samples: float) -> np.ndarray:
+    """``(2, 2)`` pixel² covariance of a displacement from its NCC peak: C = 2 (1 − ρ)/N_eff (−H)⁻¹ (module
+    docstring), ``correlation`` ρ, ``hessian`` H ``(2, 2)`` per pixel² (negative definite), ``samples`` N_eff."""
+    return 2.0 * max(1.0 - correlation, 0.0) / samples * np.linalg.inv(-hessian)
+
+
 def track(first, second, options: TrackingOptions = TrackingOptions(), points=None, valid_first=None,
-          valid_second=None, guess=None) -> Displacements:
+          valid_second=None, guess=None, land=None) -> Displacements:
     """Displacements of the texture of ``first`` found in ``second`` (two images of one map grid).
 
     Args:
@@ -177,6 +215,8 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
         points: ``(rows (n,), columns (n,))`` start positions; default :func:`grid_points`.
         valid_first, valid_second: bool masks (default: finite values).
         guess: ``(d_row (n,), d_column (n,))`` first guesses in pixels, overriding ``options.first_guess``.
+        land: ``(rows, columns)`` bool, True on land: a vector whose start or end pixel is land is
+            :data:`ON_LAND` (a start on land is not tracked), before the median test.
     """
     first, second = np.asarray(first, float), np.asarray(second, float)
     if first.shape != second.shape:
@@ -195,23 +235,39 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
     images = (np.where(valid_first, first, 0.0).astype(np.float32), np.where(valid_second, second, 0.0).astype(
         np.float32), valid_first, valid_second)
     n = rows.size
-    out = {k: np.full(n, np.nan) for k in ("d_row", "d_column", "correlation", "sharpness")}
+    names = ("d_row", "d_column", "correlation", "sharpness", "sigma_row", "sigma_column")
+    out = {k: np.full(n, np.nan) for k in names}
     status = np.full(n, GOOD)
-    for k in range(n):
-        status[k], out["d_row"][k], out["d_column"][k], out["correlation"][k], out["sharpness"][k] = _track_point(
-            images, rows[k], columns[k], guess_row[k], guess_column[k], options)
-    result = Displacements(rows, columns, out["d_row"], out["d_column"], out["correlation"], out["sharpness"],
-                           status)
-    return median_test(result, options)
+    starts_on_land = np.zeros(n, bool) if land is None else on_land(land, rows, columns)
+    status[starts_on_land] = ON_LAND
+    for k in np.nonzero(~starts_on_land)[0]:
+        status[k], *measured = _track_point(images, rows[k], columns[k], guess_row[k], guess_column[k], options)
+        for name, value in zip(names, measured, strict=True):
+            out[name][k] = value
+    if land is not None:
+        status[on_land(land, rows + out["d_row"], columns + out["d_column"])] = ON_LAND
+    return median_test(Displacements(rows, columns, status=status, **out), options)
+
+
+def on_land(land, rows, columns) -> np.ndarray:
+    """``(n,)`` bool: the grid cell nearest each position ``rows, columns`` ``(n,)`` (0-based pixels) is land in
+    ``land`` ``(n_rows, n_columns)`` bool; False off the grid and where a position is NaN."""
+    land = np.asarray(land, bool)
+    row, column = np.rint(np.asarray(rows, float)), np.rint(np.asarray(columns, float))
+    inside = (row >= 0) & (row < land.shape[0]) & (column >= 0) & (column < land.shape[1])
+    result = np.zeros(row.shape, bool)
+    result[inside] = land[row[inside].astype(int), column[inside].astype(int)]
+    return result
 
 
 def _track_point(images, row, column, guess_row, guess_column, options: TrackingOptions):
-    """One point: ``(status, d_row, d_column, correlation, sharpness)`` (NaN where not measured). ``images``: the
-    two images with no data as 0 (float32) and their validity masks."""
+    """One point: ``(status, d_row, d_column, correlation, sharpness, sigma_row, sigma_column)`` (pixels; NaN where
+    not measured). ``images``: the two images with no data as 0 (float32) and their validity masks."""
     a, b, valid_first, valid_second = images
     h, s = options.patch // 2, options.search
+    missing = (NO_DATA, *[np.nan] * 6)
     if not (np.isfinite(row) and np.isfinite(column)):
-        return NO_DATA, np.nan, np.nan, np.nan, np.nan
+        return missing
     r, c = int(round(row)), int(round(column))
     gr, gc = int(round(guess_row)), int(round(guess_column))
     r2, c2 = r + gr, c + gc
@@ -219,17 +275,22 @@ def _track_point(images, row, column, guess_row, guess_column, options: Tracking
             or c2 - h - s < 0 or r2 + h + s + 1 > b.shape[0] or c2 + h + s + 1 > b.shape[1]
             or not valid_first[r - h:r + h + 1, c - h:c + h + 1].all()
             or not valid_second[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1].all()):
-        return NO_DATA, np.nan, np.nan, np.nan, np.nan
+        return missing
     template = a[r - h:r + h + 1, c - h:c + h + 1]
     if template.std() < options.min_contrast:
-        return LOW_CONTRAST, np.nan, np.nan, np.nan, np.nan
+        return LOW_CONTRAST, *[np.nan] * 6
     surface, i, j, peak, sharpness = correlation_peak(template, b[r2 - h - s:r2 + h + s + 1, c2 - h - s:c2 + h + s + 1])
     if i in (0, surface.shape[0] - 1) or j in (0, surface.shape[1] - 1):
-        return AT_EDGE, np.nan, np.nan, peak, sharpness
-    (di, dj), _ = quadratic_peak(surface, i, j)
+        return AT_EDGE, np.nan, np.nan, peak, sharpness, np.nan, np.nan
+    (di, dj), hessian = quadratic_peak(surface, i, j)
+    d_row, d_column = gr + i - s + di + (r - row), gc + j - s + dj + (c - column)
+    if np.linalg.det(hessian) <= 0 or hessian[0, 0] >= 0:  # no maximum in the fit: no sub-pixel position, no σ
+        return FLAT_PEAK, d_row, d_column, peak, sharpness, np.nan, np.nan
+    covariance = peak_covariance(peak, hessian, options.patch**2 / options.correlation_area)
+    sigma_row, sigma_column = np.sqrt(options.sigma_floor**2 + np.diagonal(covariance))
     status = LOW_CORRELATION if peak < options.min_correlation else FLAT_PEAK if sharpness < options.min_sharpness \
         else GOOD
-    return status, gr + i - s + di + (r - row), gc + j - s + dj + (c - column), peak, sharpness
+    return status, d_row, d_column, peak, sharpness, sigma_row, sigma_column
 
 
 def median_test(displacements: Displacements, options: TrackingOptions = TrackingOptions()) -> Displacements:

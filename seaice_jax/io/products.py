@@ -6,7 +6,8 @@ The project's drift file (:func:`write_drift_netcdf`, CF 1.8 and ACDD 1.3): disp
 along the grid's x and y axes (``standard_name`` ``sea_ice_x_displacement`` / ``sea_ice_y_displacement``), their
 standard errors linked by ``ancillary_variables``, start and end latitude/longitude, ``time_bnds``, a ``crs``
 grid-mapping variable (CF attributes and ``crs_wkt`` from pyproj) and a ``status_flag``; velocities both along the
-grid axes (``u_grid``, ``v_grid``) and toward geographic east and north (``u_east``, ``v_north``).
+grid axes (``u_grid``, ``v_grid``) and toward geographic east and north (``u_east``, ``v_north``); from tracking,
+also each vector's tracking σ (``dX_tracking_uncertainty``, ``dY_tracking_uncertainty``) and peak ``correlation``.
 :func:`write_osisaf_drift` writes the same vectors in the layout of the OSI SAF low-resolution drift product
 (OSI-405: km, ``uncert_dX_and_dY``, ``dt0``/``dt1``, its flag codes). Written with xarray/netCDF4 and tifffile.
 """
@@ -20,7 +21,16 @@ import numpy as np
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_geojson
 from seaice_jax.geometry.projections import MapGrid
-from seaice_jax.imagery.tracking import AT_EDGE, FLAT_PEAK, GOOD, LOW_CONTRAST, LOW_CORRELATION, NO_DATA, OUTLIER
+from seaice_jax.imagery.tracking import (
+    AT_EDGE,
+    FLAT_PEAK,
+    GOOD,
+    LOW_CONTRAST,
+    LOW_CORRELATION,
+    NO_DATA,
+    ON_LAND,
+    OUTLIER,
+)
 
 # ---------------------------------------------------------------------------------------------- GeoTIFF
 
@@ -180,7 +190,7 @@ OSISAF_STATUS = {0: "missing_input_data", 1: "over_land", 2: "no_ice", 3: "close
 """``status_flag`` codes of the OSI SAF low-resolution sea-ice drift product (OSI-405), as its files declare them."""
 
 TO_OSISAF_STATUS = {GOOD: 30, NO_DATA: 0, LOW_CONTRAST: 10, LOW_CORRELATION: 11, FLAT_PEAK: 10, AT_EDGE: 10,
-                    OUTLIER: 13}
+                    OUTLIER: 13, ON_LAND: 1}
 """The OSI SAF code of each :data:`seaice_jax.imagery.tracking.STATUS` code: a patch without texture, a flat peak
 and a peak at the search window's edge are all "processing_failed" there."""
 
@@ -305,7 +315,9 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
         grid: the grid of the vectors' *start* positions (e.g. the tracking lattice as a :class:`MapGrid`).
         fields: ``(n_rows, n_columns)`` arrays: ``dX, dY`` (m along the grid axes), ``dX_uncertainty,
             dY_uncertainty`` (m), ``status_flag`` (int, see ``flag_meanings``), and optionally ``u_east,
-            v_north`` (m/s). NaN where there is no vector.
+            v_north`` (m/s), ``dX_tracking_uncertainty, dY_tracking_uncertainty`` (m, the tracking's part of the
+            standard errors) and ``correlation`` (the match's peak normalised cross-correlation, also where the
+            vector was rejected). NaN where there is no vector (no match for ``correlation``).
         start_time, end_time: s since ``epoch`` (ISO 8601 UTC) of the two images.
         flags: ``{status code: meaning}`` of ``status_flag`` (e.g. :data:`seaice_jax.imagery.tracking.STATUS`).
         deformation: optional :class:`~seaice_jax.drift.kinematics.Deformation` of triangles of the grid's
@@ -322,14 +334,18 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
         return (dims, np.asarray(values, float)[None], {**attrs, **geo, "coverage_content_type": content})
 
     east = fields.get("u_east")
+    tracked = "correlation" in fields
+    links = " dX_tracking_uncertainty dY_tracking_uncertainty correlation" if tracked else ""
     data = {
         "crs": ((), np.int32(0), _grid_mapping(grid)),
         **_lat_lon(lat, lon),
         "time_bnds": (("time", "nv"), np.array([[start_time, end_time]]), _time_attrs(epoch)),
         "dX": var(dx, standard_name="sea_ice_x_displacement", units="m",
-                  long_name="displacement along the grid's x axis", ancillary_variables="dX_uncertainty status_flag"),
+                  long_name="displacement along the grid's x axis",
+                  ancillary_variables="dX_uncertainty status_flag" + links),
         "dY": var(dy, standard_name="sea_ice_y_displacement", units="m",
-                  long_name="displacement along the grid's y axis", ancillary_variables="dY_uncertainty status_flag"),
+                  long_name="displacement along the grid's y axis",
+                  ancillary_variables="dY_uncertainty status_flag" + links),
         "dX_uncertainty": var(fields["dX_uncertainty"], "qualityInformation", units="m",
                               standard_name="sea_ice_x_displacement standard_error",
                               long_name="standard error of dX"),
@@ -355,6 +371,14 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
                              long_name="velocity toward geographic east")
         data["v_north"] = var(fields["v_north"], standard_name="northward_sea_ice_velocity", units="m s-1",
                               long_name="velocity toward geographic north")
+    if tracked:
+        for axis in ("X", "Y"):
+            data[f"d{axis}_tracking_uncertainty"] = var(
+                fields[f"d{axis}_tracking_uncertainty"], "qualityInformation", units="m",
+                long_name=f"standard error of d{axis} due to the image matching alone (from the correlation peak's "
+                          f"height and curvature; part of d{axis}_uncertainty)")
+        data["correlation"] = var(fields["correlation"], "qualityInformation", units="1", valid_range=np.array(
+            [-1.0, 1.0]), long_name="peak normalised cross-correlation of the matched patches")
     if deformation is not None:
         tri = ("triangle",)
         data["triangle_vertices"] = (("triangle", "vertex"), np.asarray(deformation.triangles, np.int32), {
@@ -473,13 +497,29 @@ def write_trajectories_geojson(path: str | os.PathLike, floe, time, latitude, lo
     return write_geojson(path, features)
 
 
-def write_fixes_geojson(path: str | os.PathLike, floe, time, latitude, longitude, epoch: str) -> Path:
+def write_fixes_geojson(path: str | os.PathLike, floe, time, latitude, longitude, epoch: str, tracking_sigma=None,
+                        correlation=None) -> Path:
     """One Point feature per fix (floe position at one time), with ``floe_id``, ISO 8601 ``time`` and the fix's
-    ``sequence`` number along its floe (0 first): the point layer beside :func:`write_trajectories_geojson`."""
+    ``sequence`` number along its floe (0 first): the point layer beside :func:`write_trajectories_geojson`. With
+    ``tracking_sigma`` ``(n, 2)`` m (along the grid's x, y) and ``correlation`` ``(n,)`` of the tracked step that
+    reached each fix, also ``tracking_sigma_x_m``, ``tracking_sigma_y_m`` and ``correlation`` (null where NaN: a
+    floe's first fix)."""
     from seaice_jax.timefmt import time_after
 
     time = np.asarray(time, float)
+
+    def number(values, i, axis=None):
+        value = float(values[i] if axis is None else values[i, axis])
+        return value if np.isfinite(value) else None
+
+    def tracked(i):
+        if tracking_sigma is None or correlation is None:
+            return {}
+        return {"tracking_sigma_x_m": number(tracking_sigma, i, 0), "tracking_sigma_y_m": number(tracking_sigma, i, 1),
+                "correlation": number(correlation, i)}
+
     features = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": _lon_lat(latitude, longitude, i)},
-                 "properties": {"floe_id": str(f), "time": time_after(epoch, float(time[i])), "sequence": n}}
+                 "properties": {"floe_id": str(f), "time": time_after(epoch, float(time[i])), "sequence": n,
+                                **tracked(i)}}
                 for f, k in _floe_fixes(floe, time).items() for n, i in enumerate(k.tolist())]
     return write_geojson(path, features)

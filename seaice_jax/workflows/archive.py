@@ -384,7 +384,7 @@ def _pair_outline(stack: RemappedStack, first: int) -> RemappedStack:
 
 
 def track_image_pair(outline: RemappedStack, first: int, parts: str | os.PathLike, staging: str | os.PathLike,
-                     lattice, options: TrackingOptions, tracking_sigma: float, on_land=None,
+                     lattice, options: TrackingOptions, land=None,
                      layout: str = "project") -> tuple[TrackedPair, list[Path]]:
     """The task of one pair: read images ``first`` and ``first + 1`` from the unpacked pixels (``parts``:
     :func:`staged_stack`) into ``outline`` (:func:`_pair_outline`), track them
@@ -397,14 +397,14 @@ def track_image_pair(outline: RemappedStack, first: int, parts: str | os.PathLik
     pixels = {name: np.array(np.load(Path(parts) / f"{name}.npy", mmap_mode="r")[first:first + 2])
               for name in PIXELS}
     pair_stack = replace(outline, **pixels)
-    pair = track_pair(pair_stack, 0, options, tracking_sigma, on_land)
+    pair = track_pair(pair_stack, 0, options, land)
     files = write_pair(pair_stack, lattice, pair, Path(staging), layout)
     return replace(pair, first=first), files
 
 
 def track_archive(client: Client, stack: RemappedStack, staging: str | os.PathLike,
-                  options: TrackingOptions | None = None, tracking_sigma: float = 0.2, layout: str = "project",
-                  land=None, progress: bool = False) -> tuple[TrackedSequence, tuple[Path, ...]]:
+                  options: TrackingOptions | None = None, layout: str = "project", land=None,
+                  progress: bool = False) -> tuple[TrackedSequence, tuple[Path, ...]]:
     """Track every pair of consecutive images of ``stack`` (from :func:`staged_stack` into ``staging``) as one Dask
     task (:func:`track_image_pair`), follow the floes through the sequence in this process meanwhile
     (:func:`~seaice_jax.workflows.image_sequence.follow_floes`: a chain), and write the sequence-wide files;
@@ -418,16 +418,15 @@ def track_archive(client: Client, stack: RemappedStack, staging: str | os.PathLi
     options = options or TrackingOptions()
     staging = Path(staging)
     rows, columns = grid_points(stack.grid.shape, options)
-    on_land = None if land is None else np.asarray(land, bool)[rows.astype(int), columns.astype(int)]
     lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
     count = len(stack.names) - 1
     futures = client.map(track_image_pair, [_pair_outline(stack, k) for k in range(count)], range(count),
                          parts=str(staging / PARTS), staging=str(staging), lattice=lattice, options=options,
-                         tracking_sigma=tracking_sigma, on_land=on_land, layout=layout, pure=False)
+                         land=land, layout=layout, pure=False)
     pairs: list[TrackedPair | None] = [None] * count
     written: list[list[Path]] = [[] for _ in range(count)]
     try:
-        records = follow_floes(stack, rows, columns, options, progress, on_land)
+        records = follow_floes(stack, rows, columns, options, progress, land)
         with tqdm(total=count, desc="track (dask)", disable=not progress, leave=False) as bar:
             for future in as_completed(futures):
                 pair, files = future.result()
@@ -445,8 +444,8 @@ def track_archive(client: Client, stack: RemappedStack, staging: str | os.PathLi
 
 
 def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: TrackingOptions | None = None,
-                      tracking_sigma: float = 0.2, progress: bool = True, overwrite: bool = False,
-                      layout: str = "project", land: str | os.PathLike | None = None, workers: int | None = None,
+                      progress: bool = True, overwrite: bool = False, layout: str = "project",
+                      land: str | os.PathLike | None = "coastline", workers: int | None = None,
                       scheduler: str | None = None) -> Step[TrackedSequence]:
     """:func:`~seaice_jax.workflows.image_sequence.run_track` on Dask (:func:`dask_client`: ``workers`` local
     processes, or the cluster at ``scheduler``) for the folder of ``seaice remap``: the same files in ``out_dir``,
@@ -466,7 +465,6 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
         check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
         mask = None if land is None else land_of_grid(land, stack.grid)
         with dask_client(workers, scheduler) as client:
-            tracked, files = track_archive(client, stack, folder.path, options, tracking_sigma, layout, mask,
-                                           progress)
+            tracked, files = track_archive(client, stack, folder.path, options, layout, mask, progress)
         files = folder.final(files)
     return Step(files, track_report(stack, tracked), tracked)

@@ -45,7 +45,7 @@ from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Direction, Orbit, ScanModel
 from seaice_jax.imagery.coast_control import coast_control
 from seaice_jax.imagery.movie import render_frames, write_movie
 from seaice_jax.imagery.remap import remap
-from seaice_jax.imagery.tracking import GOOD, NO_DATA, STATUS, TrackingOptions, grid_points, track
+from seaice_jax.imagery.tracking import GOOD, STATUS, TrackingOptions, grid_points, on_land, track
 from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.products import (
     read_geotiff,
@@ -490,11 +490,12 @@ def run_remap(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
 # ------------------------------------------------------------------------------------------------ track
 
 
-def displacement_sigma(models, covariance, grid: MapGrid, x, y, dx, dy, tracking_sigma: float) -> np.ndarray:
+def displacement_sigma(models, covariance, grid: MapGrid, x, y, dx, dy, tracking_sigma) -> np.ndarray:
     """σ ``(n, 2)`` (m, along the grid's x and y) of displacements ``dx, dy`` (m) from map points ``x, y`` of one
     image to the next: the geolocation errors of both images at the vector's start and end through their scan
     models (``models``: the two :class:`ScanModel`) and the joint covariance ``(10, 10)`` of their unknowns (the
-    cross-covariance of co-registered images included), plus ``tracking_sigma`` m per coordinate."""
+    cross-covariance of co-registered images included), and the tracking's σ ``tracking_sigma`` (m: one number for
+    both coordinates, or ``(n, 2)`` per vector along x and y), independent of them."""
     jacobians = []
     for model, xs, ys in ((models[0], x, y), (models[1], x + np.nan_to_num(dx), y + np.nan_to_num(dy))):
         lat, lon = grid.projection.inverse(xs, ys)
@@ -523,7 +524,9 @@ class TrackedPair:
 
     Attributes:
         first: image index. interval: s. status: tracking flags (:data:`~seaice_jax.imagery.tracking.STATUS`).
-        x, y: m, start positions; dx, dy: m along the grid axes; sigma: ``(n, 2)`` m of ``dx, dy``.
+        x, y: m, start positions; dx, dy: m along the grid axes; sigma: ``(n, 2)`` m of ``dx, dy`` (both images'
+        geolocation and the tracking). tracking_sigma: ``(n, 2)`` m, the tracking's part, from each vector's
+        correlation peak. correlation: ``(n,)`` the peak's normalised cross-correlation (NaN where not measured).
         u_east, v_north: m/s toward geographic east and north. deformation: of the Delaunay triangles of the good
         vectors (lattice indices), or ``None`` with fewer than three.
     """
@@ -536,6 +539,8 @@ class TrackedPair:
     dx: np.ndarray
     dy: np.ndarray
     sigma: np.ndarray
+    tracking_sigma: np.ndarray
+    correlation: np.ndarray
     u_east: np.ndarray
     v_north: np.ndarray
     deformation: Deformation | None
@@ -556,22 +561,27 @@ class TrackedSequence:
     options: TrackingOptions
 
 
-def track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking_sigma: float,
-               on_land=None) -> TrackedPair:
-    """The drift from image ``k`` of ``stack`` to ``k + 1``, as :func:`track_sequence` tracks each pair (``on_land``:
-    ``(n,)`` bool per lattice point, True: status ``NO_DATA``)."""
+def _tracking_sigma(displacements, grid: MapGrid) -> np.ndarray:
+    """``(n, 2)`` m along the grid's x and y: the tracked vectors' σ (pixels of columns and rows) in metres."""
+    return np.column_stack([displacements.sigma_column * abs(float(grid.pixel_width)),
+                            displacements.sigma_row * abs(float(grid.pixel_height))])
+
+
+def track_pair(stack: RemappedStack, k: int, options: TrackingOptions, land=None) -> TrackedPair:
+    """The drift from image ``k`` of ``stack`` to ``k + 1``, as :func:`track_sequence` tracks each pair (``land``:
+    ``(n_rows, n_columns)`` bool on the grid, True on land)."""
     pair = track(stack.values[k], stack.values[k + 1], options, valid_first=stack.valid[k],
-                 valid_second=stack.valid[k + 1])
-    status = pair.status if on_land is None else np.where(on_land, NO_DATA, pair.status)
+                 valid_second=stack.valid[k + 1], land=land)
+    status = pair.status
     good = status == GOOD
     vectors = pair.in_map(stack.grid)
     x, y, dx, dy = (vectors[key] for key in ("x", "y", "dx", "dy"))
+    tracking_sigma = _tracking_sigma(pair, stack.grid)
     if stack.models:
         sigma = displacement_sigma(stack.models[k:k + 2], stack.pair_covariance(k), stack.grid, x, y, dx, dy,
-                                   tracking_sigma * float(stack.grid.pixel_width))
+                                   tracking_sigma)
     else:  # GeoTIFFs without scan models: the tracking alone
-        sigma = np.column_stack([np.full(x.shape, tracking_sigma * float(stack.grid.pixel_width)),
-                                 np.full(y.shape, tracking_sigma * float(stack.grid.pixel_height))])
+        sigma = tracking_sigma
     interval = float(stack.times[k + 1] - stack.times[k])
     east, north = (np.asarray(a) for a in grid_to_east_north(stack.grid.projection, x, y, dx / interval,
                                                               dy / interval))
@@ -581,26 +591,32 @@ def track_pair(stack: RemappedStack, k: int, options: TrackingOptions, tracking_
         rates = deformation(np.stack([x, y], 1)[index], np.stack([dx, dy], 1)[index] / interval,
                             sigma[index] / interval)  # (relative errors: conservative)
         rates = replace(rates, triangles=index[rates.triangles])
-    return TrackedPair(k, interval, status, x, y, dx, dy, sigma, east, north, rates)
+    return TrackedPair(k, interval, status, x, y, dx, dy, sigma, tracking_sigma, pair.correlation, east, north,
+                       rates)
 
 
 def follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, progress: bool,
-                 on_land=None) -> FloeRecords:
+                 land=None) -> FloeRecords:
     """Floe records of the lattice points of the first image, followed from image to image while their tracking
     stays good: grid position -> latitude, longitude and each image's own pixel and scan line (the grid's 1-based
-    column and row for images without a scan model)."""
+    column and row for images without a scan model), and the tracking σ and correlation of the step that reached
+    each fix (NaN at a floe's first). ``land``: ``(n_rows, n_columns)`` bool on the grid, True on land: no floe
+    starts there, and one whose step starts or ends on it is no longer followed."""
     floe_row, floe_column = rows.copy(), columns.copy()
-    alive = np.ones(rows.size, bool) if on_land is None else ~on_land
-    fixes = [(np.nonzero(alive)[0], 0, rows[alive], columns[alive])]
+    alive = np.ones(rows.size, bool) if land is None else ~on_land(land, rows, columns)
+    first = np.nonzero(alive)[0]
+    fixes = [(first, 0, rows[alive], columns[alive], np.full((first.size, 2), np.nan), np.full(first.size, np.nan))]
     for k in tqdm(range(len(stack.names) - 1), desc="follow floes", disable=not progress, leave=False):
         chained = track(stack.values[k], stack.values[k + 1], options, points=(floe_row, floe_column),
-                        valid_first=stack.valid[k], valid_second=stack.valid[k + 1])
+                        valid_first=stack.valid[k], valid_second=stack.valid[k + 1], land=land)
         alive &= chained.good
         floe_row = np.where(alive, floe_row + np.nan_to_num(chained.d_row), np.nan)
         floe_column = np.where(alive, floe_column + np.nan_to_num(chained.d_column), np.nan)
-        fixes.append((np.nonzero(alive)[0], k + 1, floe_row[alive], floe_column[alive]))
-    columns_out = {k: [] for k in ("floe", "time", "image", "pixel", "scan", "latitude", "longitude")}
-    for ids, k, fix_rows, fix_columns in fixes:
+        fixes.append((np.nonzero(alive)[0], k + 1, floe_row[alive], floe_column[alive],
+                      _tracking_sigma(chained, stack.grid)[alive], chained.correlation[alive]))
+    columns_out = {k: [] for k in ("floe", "time", "image", "pixel", "scan", "latitude", "longitude",
+                                   "tracking_sigma", "correlation")}
+    for ids, k, fix_rows, fix_columns, tracking_sigma, correlation in fixes:
         x, y = stack.grid.to_xy(fix_rows, fix_columns)
         lat, lon = (np.asarray(a) for a in stack.grid.projection.inverse(x, y))
         pixel, scan = ((np.asarray(a) for a in stack.models[k].inverse(lat, lon)) if stack.models
@@ -608,29 +624,30 @@ def follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, 
         columns_out["floe"] += [f"G{i:04d}" for i in ids]
         columns_out["time"].append(np.full(ids.size, stack.times[k]))
         columns_out["image"] += [stack.names[k]] * ids.size
-        for name, value in (("pixel", pixel), ("scan", scan), ("latitude", lat), ("longitude", lon)):
+        for name, value in (("pixel", pixel), ("scan", scan), ("latitude", lat), ("longitude", lon),
+                            ("tracking_sigma", tracking_sigma), ("correlation", correlation)):
             columns_out[name].append(value)
     arrays = {k: (np.concatenate(v) if k not in ("floe", "image") else np.array(v)) for k, v in columns_out.items()}
     order = np.lexsort((arrays["time"], arrays["floe"]))
     return FloeRecords(**{k: v[order] for k, v in arrays.items()}, epoch=stack.epoch)
 
 
-def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None, tracking_sigma: float = 0.2,
-                   progress: bool = False, land=None) -> TrackedSequence:
-    """Track the ice between consecutive remapped images (``tracking_sigma``: pixels, σ of a tracked
-    displacement, combined with both images' geolocation σ; ``land``: ``(n_rows, n_columns)`` bool on the grid,
-    True on land: no vector starts and no floe is followed from a lattice point on land (status ``NO_DATA``),
-    while patches at sea may reach over the coast)."""
+def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None, progress: bool = False,
+                   land=None) -> TrackedSequence:
+    """Track the ice between consecutive remapped images; each vector's σ combines its tracking σ (from its
+    correlation peak, :mod:`seaice_jax.imagery.tracking`) with both images' geolocation σ. ``land``: ``(n_rows,
+    n_columns)`` bool on the grid, True on land: a vector that starts or ends on land has the status
+    :data:`~seaice_jax.imagery.tracking.ON_LAND` (never good), and no floe is followed onto or from land, while
+    patches at sea may reach over the coast."""
     options = options or TrackingOptions()
     if len(stack.names) < 2:
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
     check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
     rows, columns = grid_points(stack.grid.shape, options)
-    on_land = None if land is None else np.asarray(land, bool)[rows.astype(int), columns.astype(int)]
     lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
-    pairs = tuple(track_pair(stack, k, options, tracking_sigma, on_land)
+    pairs = tuple(track_pair(stack, k, options, land)
                   for k in tqdm(range(len(stack.names) - 1), desc="track", disable=not progress, leave=False))
-    return TrackedSequence(pairs, lattice, follow_floes(stack, rows, columns, options, progress, on_land), options)
+    return TrackedSequence(pairs, lattice, follow_floes(stack, rows, columns, options, progress, land), options)
 
 
 def track_report(stack: RemappedStack, tracked: TrackedSequence) -> str:
@@ -659,7 +676,10 @@ def write_pair(stack: RemappedStack, lattice: MapGrid, pair: TrackedPair, out: P
 
     fields = {"dX": field(pair.dx), "dY": field(pair.dy), "dX_uncertainty": field(pair.sigma[:, 0]),
               "dY_uncertainty": field(pair.sigma[:, 1]), "status_flag": pair.status.reshape(shape),
-              "u_east": field(pair.u_east), "v_north": field(pair.v_north)}
+              "u_east": field(pair.u_east), "v_north": field(pair.v_north),
+              "dX_tracking_uncertainty": field(pair.tracking_sigma[:, 0]),
+              "dY_tracking_uncertainty": field(pair.tracking_sigma[:, 1]),
+              "correlation": pair.correlation.reshape(shape)}
     start = np.stack([pair.x, pair.y], 1)
     osisaf = ([write_osisaf_drift(out / f"drift_{a}_{b}_osisaf.nc", lattice, fields, stack.times[pair.first],
                                  stack.times[pair.first + 1], stack.epoch, title=f"Sea-ice drift {a} to {b}")]
@@ -686,7 +706,7 @@ def write_tracked(stack: RemappedStack, tracked: TrackedSequence, out_dir: str |
     files.append(write_trajectories_geojson(out / "trajectories.geojson", records.floe, records.time,
                                             records.latitude, records.longitude, records.epoch))
     files.append(write_fixes_geojson(out / "fixes.geojson", records.floe, records.time, records.latitude,
-                                     records.longitude, records.epoch))
+                                     records.longitude, records.epoch, records.tracking_sigma, records.correlation))
     return tuple(files)
 
 
@@ -709,21 +729,21 @@ def land_of_grid(land: str | os.PathLike, grid: MapGrid, kind: str = "land mask"
 
 
 def run_track(remapped_dir, out_dir: str | os.PathLike, options: TrackingOptions | None = None,
-              tracking_sigma: float = 0.2, progress: bool = True, overwrite: bool = False, layout: str = "project",
-              times=None, land: str | os.PathLike | None = None) -> Step[TrackedSequence]:
+              progress: bool = True, overwrite: bool = False, layout: str = "project", times=None,
+              land: str | os.PathLike | None = "coastline") -> Step[TrackedSequence]:
     """Track the ice (:func:`track_sequence`) through the stack written by :func:`run_remap` (``remapped_dir``: its
     folder) or through GeoTIFFs of one grid made elsewhere (``remapped_dir``: a list of files, ``times`` their ISO
     8601 times unless their DateTime tags give them: :func:`geotiff_stack`), and write it (:func:`write_tracked`,
     ``layout`` ``"project"`` or ``"osisaf"``) as one run (:func:`~seaice_jax.outputs.output_folder`); ``land``:
-    ``"coastline"`` or a ``.npy`` mask (:func:`land_of_grid`): no vector starts on its land."""
+    ``"coastline"`` (the default: GSHHG land on the grid) or a ``.npy`` mask (:func:`land_of_grid`): vectors that
+    start or end on its land are flagged "on land"; ``None``: no land mask."""
     files_given = isinstance(remapped_dir, list | tuple)
     inputs = tuple(remapped_dir) if files_given else (remapped_dir,)
     with output_folder(out_dir, overwrite, inputs=inputs) as folder:
         stack = geotiff_stack(remapped_dir, times) if files_given else load_remapped(remapped_dir)
         if len(stack.names) < 2:
             raise SeaiceError(f"{remapped_dir}: tracking needs at least two images, got {len(stack.names)}")
-        tracked = track_sequence(stack, options, tracking_sigma, progress,
-                                 None if land is None else land_of_grid(land, stack.grid))
+        tracked = track_sequence(stack, options, progress, None if land is None else land_of_grid(land, stack.grid))
         files = folder.final(write_tracked(stack, tracked, folder.path, layout))
     return Step(files, track_report(stack, tracked), tracked)
 
