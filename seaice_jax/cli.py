@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from seaice_jax import __version__  # noqa: E402
 from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code  # noqa: E402
-from seaice_jax.outputs import Interrupted, interrupts_raise  # noqa: E402
+from seaice_jax.outputs import Interrupted, check_interrupted, interrupts_raise  # noqa: E402
 
 CACHE_VARIABLE = "SEAICE_JAX_CACHE_DIR"
 """Environment variable naming the folder of JAX's persistent compilation cache (empty: no cache)."""
@@ -603,16 +603,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run the ``seaice`` command; returns its exit code (:mod:`seaice_jax.errors`)."""
-    args = build_parser().parse_args(argv)
-    _use_compile_cache(compile_cache_folder(args.compile_cache))
     start = time.perf_counter()
+    args = None
     try:
-        with interrupts_raise():
+        with interrupts_raise():  # from the start: a Ctrl-C while JAX loads is not lost (nor a traceback)
+            args = build_parser().parse_args(argv)
+            _use_compile_cache(compile_cache_folder(args.compile_cache))
+            check_interrupted()  # one swallowed while JAX loaded (by its garbage-collection callback)
             code = args.run(args)
     except Interrupted as interrupt:
-        print(f"seaice {args.command}: {interrupt}; the output was left as it was before the run", file=sys.stderr)
+        name = "seaice" if args is None else f"seaice {args.command}"
+        left = ("" if not interrupt.left else f", but its temporary folder {', '.join(map(str, interrupt.left))} "
+                "could not be removed (the next run into the same output removes it)")
+        print(f"{name}: {interrupt}; the output was left as it was before the run{left}", file=sys.stderr)
         return interrupt.exit_code
     except Exception as error:
+        if args is None:  # not from a command (the parser reports its own errors by SystemExit)
+            raise
         code = exit_code(error)
         if args.verbosity >= VERBOSE:
             traceback.print_exc()

@@ -29,6 +29,7 @@ import fcntl
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from collections.abc import Iterable, Iterator
@@ -53,6 +54,8 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(f"interrupted by {signal.Signals(signum).name}")
         self.signum = signum
         self.exit_code = 128 + signum
+        self.left: list[Path] = []
+        """Temporary folders the interrupted run could not remove (the next run into the same target does)."""
 
 
 def check_interrupted() -> None:
@@ -188,14 +191,19 @@ def _read_only(path: Path) -> bool:
 
 def _check_writable(target: Path, folder: bool) -> None:
     """Refuse a read-only target (an existing folder or file) or a target whose parent folder cannot take the
-    temporary folder and the final rename."""
+    temporary folder and the final rename.
+
+    Raises:
+        PermissionError: naming the target (an output that cannot be written: exit code 1).
+    """
+    kind = "folder" if folder else "file"
     if os.path.lexists(target) and _read_only(target):
-        raise SeaiceError(f"{target}: is read-only (not writable); make it writable or choose another output "
-                          f"{'folder' if folder else 'file'}")
+        raise PermissionError(errno.EACCES, f"{target}: is read-only (Permission denied); make it writable or "
+                                            f"choose another output {kind}")
     parent = next((p for p in target.parents if p.exists()), None)
     if parent is not None and (not parent.is_dir() or _read_only(parent) or not os.access(parent, os.X_OK)):
-        raise SeaiceError(f"{target}: cannot be created, {parent} is not a writable folder; choose another output "
-                          f"{'folder' if folder else 'file'}")
+        raise PermissionError(errno.EACCES, f"{target}: cannot be created, {parent} is not a writable folder "
+                                            f"(Permission denied); choose another output {kind}")
 
 
 def _check_target(target: Path, folder: bool, overwrite: bool, inputs: Iterable[str | os.PathLike]) -> None:
@@ -269,6 +277,7 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
                 staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
                 os.chmod(staging, 0o777 & ~current_umask())
             _check_target(target, folder, overwrite, ())
+            check_interrupted()  # one swallowed while the run started (e.g. by a garbage-collection callback)
             try:
                 yield OutputFolder(staging, target, folder)
                 check_interrupted()
@@ -284,7 +293,14 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
         finally:
             with _signals_held():
                 if staging is not None:
-                    shutil.rmtree(staging, ignore_errors=True)
+                    for _ in range(3):  # a straggling writer may have made it again
+                        shutil.rmtree(staging, ignore_errors=True)
+                        if not os.path.lexists(staging):
+                            break
+                    else:
+                        stopped = sys.exc_info()[1]
+                        if isinstance(stopped, Interrupted):
+                            stopped.left.append(staging)
                 if handle is not None:
                     _unlock(target, handle)
 
@@ -298,6 +314,7 @@ def check_output(target: str | os.PathLike, overwrite: bool = False, inputs: Ite
         SeaiceError: naming ``target``: not of the right kind, not empty (without ``overwrite``), or containing an
             input or the working folder.
     """
+    check_interrupted()
     _check_target(_followed(Path(target), folder), folder, overwrite, inputs)
 
 
@@ -312,7 +329,8 @@ def output_folder(target: str | os.PathLike, overwrite: bool = False,
 
     Raises:
         SeaiceError: naming ``target``: not a folder, not empty (without ``overwrite``), containing an input or the
-            working folder, or locked by another run.
+            working folder, or locked by another run. PermissionError: naming ``target``: read-only, or in a
+            folder that is.
         Interrupted: on SIGINT or SIGTERM during the block (``target`` left as it was).
     """
     return _output(target, True, overwrite, inputs)

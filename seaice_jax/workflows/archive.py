@@ -29,8 +29,11 @@ import contextlib
 import json
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
+import weakref
 import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -48,7 +51,7 @@ from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
 from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
-from seaice_jax.outputs import check_output, output_folder
+from seaice_jax.outputs import check_interrupted, check_output, output_folder
 from seaice_jax.timefmt import time_after
 from seaice_jax.workflows.image_sequence import (
     Rectification,
@@ -165,12 +168,68 @@ def check_cluster_options(workers: int | None, scheduler: str | None) -> None:
         raise SeaiceError(f"--workers must be at least 1, got {workers}")
 
 
+FILES_PER_WORKER = 16
+"""Open files (sockets, pipes) a local Dask worker costs this process: about 10 measured (25 for one worker, 95 for
+eight), with a margin."""
+FILES_KEPT = 256
+"""Open files kept for the rest of this process (JAX, the images, the outputs) when the workers are counted."""
+
+
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def local_workers(requested: int | None = None) -> tuple[int, str]:
+    """How many local worker processes to start for ``requested`` (None: one per core): at most one per core (each
+    runs one image at a time on one thread) and no more than the open-file limit (``RLIMIT_NOFILE``) allows
+    (:data:`FILES_PER_WORKER`, :data:`FILES_KEPT`; 10 000 workers stopped with "Too many open files").
+
+    Returns:
+        ``(count, note)``: the note says why fewer than ``requested`` are started (empty when none are left out).
+    """
+    import resource
+
+    limit = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    by_files = (max(1, (limit - FILES_KEPT) // FILES_PER_WORKER) if limit != resource.RLIM_INFINITY
+                else requested or cores())
+    count = max(1, min(requested or cores(), cores(), by_files))
+    if requested is None or count == requested:
+        return count, ""
+    files = "" if limit == resource.RLIM_INFINITY else f", the open-file limit {limit} allows {by_files}"
+    return count, (f"--workers {requested}: starting {count} worker process(es) (this machine gives {cores()} "
+                   f"core(s){files})")
+
+
+_LOCAL: "weakref.WeakSet[Client]" = weakref.WeakSet()
+"""Clients of the local clusters :func:`dask_client` started: closing the cluster ends every task."""
+
+
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """SIGINT blocked in this thread while the block runs: threads and processes started in it inherit the block
+    (delivered here when it ends)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None) -> Iterator[Client]:
     """A Dask client: of the cluster at ``scheduler`` (an address, e.g. ``tcp://host:8786``), or of a local cluster of
-    ``workers`` processes (default: one per CPU core) with one thread each, closed when the block ends. The local
-    workers inherit the environment and share this process's persistent JAX compilation cache, if it has one (the
-    ``seaice`` command's: a second run's workers skip XLA's compilations).
+    worker processes (:func:`local_workers` of ``workers``; default: one per CPU core) with one thread each, closed
+    when the block ends. The local workers inherit the environment and share this process's persistent JAX
+    compilation cache, if it has one (the ``seaice`` command's: a second run's workers skip XLA's compilations).
+
+    The local cluster's threads and worker processes start with SIGINT blocked: a Ctrl-C (SIGINT to the terminal's
+    process group) reaches this process alone, which stops the run and closes the cluster (before, each worker took
+    the interrupt for itself, printed a traceback and was restarted by its nanny, and the run went on or took many
+    seconds to stop).
 
     Raises:
         SeaiceError: as :func:`check_cluster_options`.
@@ -186,9 +245,39 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     cache = {"JAX_COMPILATION_CACHE_DIR": str(folder), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
              "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"} if folder else {}
     no_dashboard = cast(str, None)  # typed str; None starts no web server
-    with (LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                       dashboard_address=no_dashboard, env=cache) as cluster, Client(cluster) as client):
-        yield client
+    from multiprocessing import resource_tracker
+
+    # started now, outside the block: starting it from the cluster's thread would unblock SIGINT there (it blocks
+    # and then unblocks SIGINT and SIGTERM around its own start)
+    resource_tracker.ensure_running()
+    cluster = None
+    try:
+        with _sigint_held():
+            cluster = LocalCluster(n_workers=local_workers(workers)[0], threads_per_worker=1, processes=True,
+                                   dashboard_address=no_dashboard, env=cache)
+            client = Client(cluster)
+            _LOCAL.add(client)
+        check_interrupted()
+        with client:
+            yield client
+    finally:
+        if cluster is not None:
+            with _sigint_held():  # a second Ctrl-C does not cut the closing short (it is delivered after)
+                if sys.exc_info()[0] is not None:  # stopped (an interrupt, an error): no running task is wanted
+                    _end_workers(cluster)
+                cluster.close()
+
+
+def _end_workers(cluster: LocalCluster) -> None:
+    """End the worker processes of a local cluster at once (a running task cannot be interrupted, and its nanny
+    would wait 4 s for it to close): their nannies told not to start them again, then SIGKILL."""
+    for nanny in list(cluster.workers.values()):
+        pid = getattr(nanny, "pid", None)
+        with contextlib.suppress(Exception):
+            nanny.close_gracefully("the run stopped")
+        if pid:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def _npy_header(stream, dtype, shape) -> None:
@@ -247,8 +336,11 @@ def _executing(keys: set, dask_worker=None) -> int:
 
 def _stop(client: Client, futures, timeout: float = 60.0) -> None:
     """Cancel the run's tasks and wait (up to ``timeout`` s) until none still runs, so that none writes into the
-    staging folder once it is removed (a running task cannot be interrupted, only forgotten)."""
+    staging folder once it is removed (a running task cannot be interrupted, only forgotten); on a local cluster of
+    :func:`dask_client`, closed before the staging folder is removed (its workers end with it), not waiting."""
     client.cancel(futures)
+    if client in _LOCAL:
+        return
     keys = {future.key for future in futures}
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline and sum(cast(dict, client.run(_executing, keys, on_error="ignore")).values()):
@@ -283,6 +375,7 @@ def remap_archive(client: Client, project_path: str | os.PathLike, staging: str 
                 images[image.index] = image
                 future.release()
                 bar.update()
+                check_interrupted()
     except BaseException:  # a task's error, or an interrupt: no task may write into the staging folder after this
         _stop(client, futures)
         raise
@@ -333,11 +426,22 @@ def run_remap_archive(project_path: str | os.PathLike, out_dir: str | os.PathLik
     check_cluster_options(workers, scheduler)
     read_sequence_outline(project_path)
     check_output(out_dir, overwrite, inputs=(project_path,))
-    with dask_client(workers, scheduler) as client, output_folder(out_dir, overwrite,
-                                                                  inputs=(project_path,)) as folder:
+    note = workers_note(workers, scheduler, progress)
+    # the staging folder outlives the cluster: no task writes into it once it is removed
+    with output_folder(out_dir, overwrite, inputs=(project_path,)) as folder, dask_client(workers,
+                                                                                          scheduler) as client:
         result, files = remap_archive(client, project_path, folder.path, method, fill, progress)
         files = folder.final(files)
-    return Step(files, archive_report(result, method, fill), result)
+    return Step(files, "\n".join(filter(None, [archive_report(result, method, fill), note and f"  note: {note}"])),
+                result)
+
+
+def workers_note(workers: int | None, scheduler: str | None, progress: bool) -> str:
+    """The note of :func:`local_workers` for a local cluster (printed on stderr at once with ``progress``)."""
+    note = local_workers(workers)[1] if scheduler is None else ""
+    if note and progress:
+        print(f"seaice: {note}", file=sys.stderr, flush=True)
+    return note
 
 
 # ------------------------------------------------------------------------------------------------ track
@@ -460,6 +564,7 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
         raise SeaiceError("--workers/--scheduler: give the folder of `seaice remap`; GeoTIFF files are tracked by "
                           "the single-process run (drop --workers/--scheduler)")
     check_cluster_options(workers, scheduler)
+    note = workers_note(workers, scheduler, progress)
     with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
         stack = staged_stack(remapped_dir, folder.path / PARTS)
         check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
@@ -467,4 +572,4 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
         with dask_client(workers, scheduler) as client:
             tracked, files = track_archive(client, stack, folder.path, options, layout, mask, progress)
         files = folder.final(files)
-    return Step(files, track_report(stack, tracked), tracked)
+    return Step(files, "\n".join(filter(None, [track_report(stack, tracked), note and f"  note: {note}"])), tracked)
