@@ -16,7 +16,7 @@ import os
 import sys
 from typing import TYPE_CHECKING
 
-from seaice_jax.errors import GeometryError, RankDeficiencyError, SeaiceError
+from seaice_jax.errors import GeometryError, NotConvergedError, RankDeficiencyError, SeaiceError
 
 if "jax" in sys.modules:
     from seaice_jax import _config  # noqa: F401  (float64 now)
@@ -131,7 +131,7 @@ def __dir__() -> list[str]:
 
 __all__ = [
     # errors
-    "SeaiceError", "GeometryError", "RankDeficiencyError",
+    "SeaiceError", "GeometryError", "RankDeficiencyError", "NotConvergedError",
     # the Earth
     "EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING", "WGS84_SEMI_MAJOR_AXIS",
     "cartesian_to_sphere", "ecef_to_geodetic", "geodetic_to_ecef", "great_circle_distance", "latitude_longitude",

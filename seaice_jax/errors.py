@@ -28,6 +28,19 @@ class ComputationError(SeaiceError):
     """The input was valid but the computation failed, e.g. an adjustment that did not converge (exit code 1)."""
 
 
+class NotConvergedError(ComputationError):
+    """An adjustment that stopped before its convergence test was met (at its step limit, or at a point where the
+    square sum is not finite); the message names the steps, σ̂0 and the unknown the last step moved most.
+
+    Attributes:
+        steps: the iterations taken.
+    """
+
+    def __init__(self, message: str, steps: int):
+        super().__init__(message)
+        self.steps = steps
+
+
 class GeometryError(SeaiceError):
     """Impossible geometry, e.g. a slant range with no intersection with the Earth's surface.
 

@@ -7,7 +7,7 @@ from scipy.stats import binom
 
 from seaice_jax.adjust.lsq import Observations, least_squares, make_solver
 from seaice_jax.adjust.quality import critical_value, estimated_blunder, global_test, minimal_detectable_bias
-from seaice_jax.errors import RankDeficiencyError
+from seaice_jax.errors import ComputationError, NotConvergedError, RankDeficiencyError
 
 T = np.linspace(0.0, 2.0, 15)
 SIGMA = np.linspace(0.05, 0.2, 15)
@@ -154,3 +154,21 @@ def test_no_redundancy_gives_no_invented_sigma0():
                            {"y": Observations(T[:2] * 2.0, 0.1)})
     assert result.degrees_of_freedom == 0 and np.isnan(float(result.sigma0))
     np.testing.assert_allclose(result.redundancy["y"], 0.0, atol=1e-12)
+
+
+def test_an_unconverged_fit_raises_unless_asked_not_to(rng):
+    """Stopped at its step limit short of the minimum, the fit raises a NotConvergedError (exit code 1 in the
+    ``seaice`` command) naming the steps and σ̂0; ``throw=False`` returns it, marked unconverged."""
+    y = np.asarray(decay(as_params(DECAY_TRUTH), None)["y"]) + rng.normal(0, SIGMA)
+    start = as_params({"amplitude": 1.0, "rate": 0.5, "offset": 0.0})
+    converged = least_squares(decay, start, {"y": Observations(y, SIGMA)})
+    assert int(converged.steps) > 2
+    with pytest.raises(NotConvergedError, match=r"did not converge in 2 steps \(σ̂0 = .*\): its last step moved "
+                                                r"(amplitude|offset|rate) by .*throw=False") as info:
+        least_squares(decay, start, {"y": Observations(y, SIGMA)}, max_steps=2)
+    assert info.value.steps == 2 and isinstance(info.value, ComputationError)
+    stopped = least_squares(decay, start, {"y": Observations(y, SIGMA)}, max_steps=2, throw=False)
+    assert not bool(stopped.converged) and int(stopped.steps) == 2
+    # stopped more than a standard deviation short of the minimum
+    assert abs(float(stopped.parameters["rate"] - converged.parameters["rate"])) > float(
+        converged.standard_deviations()["rate"])

@@ -128,6 +128,18 @@ def test_bad_projects_name_file_and_line_and_write_nothing(project, tmp_path, ca
     assert not out.exists()
 
 
+def test_block_that_does_not_converge_exits_1_and_writes_nothing(project, tmp_path, capsys):
+    """A strip's range scale given as 1 m/mm instead of 250 (a valid number: its slant ranges 250 times too short):
+    the Gauss-Newton iterations do not converge within the block's limit, and the command says so and exits 1 (a
+    runtime failure, as its --help says), leaving no output."""
+    bad = corrupt(project, tmp_path, "project.toml",
+                  lambda t: t.replace("range_scale_m_per_mm = 250.0", "range_scale_m_per_mm = 1.0", 1))
+    out = tmp_path / "out"
+    assert main(["block", str(bad / "project.toml"), "--out", str(out)]) == 1
+    assert re.search(r"the block adjustment did not converge in \d+ steps \(σ̂0 = [0-9.]+\): its last step moved .+ "
+                     r"by ", capsys.readouterr().err)
+    assert not out.exists()
+
 def test_block_variance_components_are_reported_near_one_on_a_simulation_with_the_stated_errors(project, tmp_path,
                                                                                                capsys):
     """The simulation draws its image and altimeter errors with the default σ: each estimated variance factor is

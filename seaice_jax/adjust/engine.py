@@ -36,7 +36,7 @@ from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import dense, schur, trust_region
 from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, unlinearized
 from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
-from seaice_jax.errors import SeaiceError
+from seaice_jax.errors import NotConvergedError, SeaiceError
 from seaice_jax.geometry._checks import is_traced
 
 BACKENDS = ("dense", "schur")
@@ -168,6 +168,9 @@ class Adjustment(eqx.Module):
         w_correlation, w_partner: ``{group: …}`` the largest |correlation| of each w with another observation's
             and that observation's flat index (−1: none).
         steps, converged: of the nonlinear loop.
+        last_step: ``(n,)`` the last step the loop computed for the global unknowns (taken, or pending when the loop
+            stopped): below the tolerances at convergence by the step test; of an unconverged solve, how far from
+            converged it stopped (:func:`not_converged_error`).
         undetermined: ``(n,)`` each global unknown's largest |component| in a direction the observations cannot
             determine at the solution (dense backend: dropped singular values of the column-scaled Jacobian, or a σ
             above :data:`RUNAWAY` times the value; the Schur backend leaves zeros: its datum check comes
@@ -194,6 +197,7 @@ class Adjustment(eqx.Module):
     w_correlation: dict | None = None
     w_partner: dict | None = None
     undetermined: Array | None = None
+    last_step: Array | None = None
     variance_components: dict | None = None
     robust_weights: dict | None = None
 
@@ -371,8 +375,8 @@ def _kept_cost(state):
 
 def _iterate(problem: Problem, layout, options: EngineOptions, dof):
     """Levenberg-Marquardt with Nielsen's damping update (λ = 0 until a step fails: plain Gauss-Newton): the
-    estimates, their linearization, the dense backend's last right singular vectors, the steps and whether
-    converged."""
+    estimates, their linearization, the dense backend's last right singular vectors, the global unknowns' last
+    step, the steps and whether converged."""
     if options.strategy == "trust-region":
         return _iterate_trust_region(problem, options, dof)
 
@@ -416,7 +420,7 @@ def _iterate(problem: Problem, layout, options: EngineOptions, dof):
                     rotation=jnp.eye(problem.unknowns if options.backend == "dense" else 0),
                     steps=jnp.zeros((), int), ended=no, converged=no)
     end = _loop(problem, options, start, trial, proposal)
-    return end.theta, end.points, end.linear, end.rotation, end.steps, end.converged
+    return end.theta, end.points, end.linear, end.rotation, end.step_theta, end.steps, end.converged
 
 
 def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
@@ -468,7 +472,7 @@ def _iterate_trust_region(problem: Problem, options: EngineOptions, dof):
                     radius=jnp.ones(()), scale=jnp.zeros(problem.unknowns), rotation=jnp.eye(problem.unknowns),
                     steps=jnp.zeros((), int), ended=no, converged=no)
     end = _loop(problem, options, start, trial, proposal)
-    return *unpacked(end.x), end.linear, end.rotation, end.steps, end.converged
+    return *unpacked(end.x), end.linear, end.rotation, unpacked(end.step)[0], end.steps, end.converged
 
 
 def _statistics(problem: Problem, layout, options: EngineOptions, theta, points, linear, rotation, cross_points):
@@ -523,7 +527,7 @@ def _statistics(problem: Problem, layout, options: EngineOptions, theta, points,
 def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
     """The compiled solve (the degrees of freedom are traced: problems differing only in them share it); the
     result's names and static degrees of freedom are set by :func:`solve`."""
-    theta, points, linear, rotation, steps, converged = _iterate(problem, layout, options, dof)
+    theta, points, linear, rotation, last_step, steps, converged = _iterate(problem, layout, options, dof)
     cofactor, point_cofactor, cross, hats, correlations, partners, undetermined = _statistics(
         problem, layout, options, theta, points, linear, rotation, cross_points)
     square = _square_sum(linear)
@@ -544,7 +548,8 @@ def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
         covariance=sigma0_squared * cofactor, sigma0=jnp.sqrt(sigma0_squared), degrees_of_freedom=0,
         residuals=out["v"], redundancy=out["r"], standardized_residuals=out["w"], steps=steps, converged=converged,
         point_cofactor=point_cofactor, point_pair_cofactor=cross, minimal_detectable_bias=out["mdb"],
-        estimated_errors=out["error"], w_correlation=correlations, w_partner=partners, undetermined=undetermined)
+        estimated_errors=out["error"], w_correlation=correlations, w_partner=partners, undetermined=undetermined,
+        last_step=last_step)
 
 
 def solve(problem: Problem, options: EngineOptions | None = None, names=(), cross_points=None, layout=None,
@@ -572,6 +577,23 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
     return dataclasses.replace(result, parameter_names=tuple(names),
                                degrees_of_freedom=None if is_traced(dof) else int(dof),
                                point_pair_cofactor=result.point_pair_cofactor[:cross_points.shape[0]])
+
+
+def not_converged_error(result: Adjustment, what: str, advice: str = "") -> NotConvergedError:
+    """The error for ``result``, an adjustment that stopped unconverged (eager use): its steps, σ̂0 and the global
+    unknown its last step moved most in units of that unknown's a priori σ (from the cofactor: σ̂0 of a solve
+    stopped far from the minimum is no measure of it; a converged solve's last step is a small fraction of a σ),
+    then ``advice``."""
+    steps = int(result.steps)
+    step = np.asarray(result.last_step, float)
+    sigma = np.sqrt(np.abs(np.diagonal(np.asarray(result.cofactor, float))))
+    in_sigma = np.where(np.isfinite(sigma) & (sigma > 0), np.abs(step) / np.where(sigma > 0, sigma, 1.0), np.nan)
+    message = f"{what} did not converge in {steps} steps (σ̂0 = {float(result.sigma0):.6g})"
+    if np.isfinite(in_sigma).any():
+        k = int(np.nanargmax(in_sigma))
+        name = result.parameter_names[k] if k < len(result.parameter_names) else f"unknown {k}"
+        message += f": its last step moved {name} by {step[k]:.3g} ({in_sigma[k]:.3g} a priori σ)"
+    return NotConvergedError(message + (f"; {advice}" if advice else ""), steps)
 
 
 def rescaled(problem: Problem, factors: dict, start: Adjustment | None = None) -> Problem:

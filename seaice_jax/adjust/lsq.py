@@ -3,16 +3,17 @@
 The user writes a model ``model(parameters, args) -> {group: predicted values}`` in JAX; observations come in named
 groups with standard deviations; each parameter leaf is free or fixed and may carry a prior (value, σ) that enters
 as a pseudo-observation (group ``"prior"``). The problem becomes one residual block of all groups (and one of the
-priors) for :mod:`seaice_jax.adjust.engine`: damped Gauss-Newton, covariance from the SVD of the column-scaled
-Jacobian, quality control of every observation.
+priors) for :mod:`seaice_jax.adjust.engine`: a trust region or damped Gauss-Newton, covariance from the SVD of the
+column-scaled Jacobian, quality control of every observation.
 
 Residual convention: v = computed − observed (as the 1985 DLAT/DLONG). The covariance of the estimates is
 σ̂0² (JᵀWJ)⁻¹ (``covariance``) and (JᵀWJ)⁻¹ (``cofactor``, the covariance if the a priori σ are right).
 
-Two ways in: :func:`least_squares` (eager, with rank-deficiency errors that name parameters) and
-:func:`make_solver`, which returns a pure function of the observed values for ``jit``/``vmap`` (Monte Carlo,
-batches of images). Solvers are compiled once per structure (model, parameter shapes, groups): a second solver of
-the same shape compiles nothing.
+Two ways in: :func:`least_squares` (eager, one problem from any start: the trust region by default, an error that
+names the parameters of a rank deficiency and one for a fit that did not converge) and :func:`make_solver`, which
+returns a pure function of the observed values for ``jit``/``vmap`` (Monte Carlo, batches of images, from a start
+near the answer: the damped loop by default). Solvers are compiled once per structure (model, parameter shapes,
+groups): a second solver of the same shape compiles nothing.
 """
 
 import dataclasses
@@ -225,6 +226,7 @@ def make_solver(
     max_steps: int = 100,
     tolerance: float = 1e-10,
     decrease_tolerance: float | None = None,
+    strategy: str = "damped",
     factorization: str = "lapack",
     args=None,
 ):
@@ -243,9 +245,13 @@ def make_solver(
         prior_sigma: pytree like ``parameters`` of prior standard deviations (``inf`` or ``None`` leaves for
             none); priors are pseudo-observations of the free unknowns.
         prior_value: the prior values (default: ``parameters``).
-        max_steps: iterations of the damped Gauss-Newton loop. tolerance: relative and absolute, on the step.
+        max_steps: iterations of the engine's loop. tolerance: relative and absolute, on the step.
         decrease_tolerance: or converged when the Gauss-Newton step is below this many a posteriori standard
             deviations (:class:`~seaice_jax.adjust.engine.EngineOptions`; default ``tolerance``).
+        strategy: ``"damped"`` (the default here: from a start near the answer, as a vmapped batch of
+            realizations has, plain Gauss-Newton steps until one fails, the fewest iterations) or
+            ``"trust-region"`` (the default of :func:`least_squares`: far starts too;
+            :class:`~seaice_jax.adjust.engine.EngineOptions`).
         factorization: the dense backend's (:class:`~seaice_jax.adjust.engine.EngineOptions`): ``"jacobi"`` for a
             solver to be vmapped over many problems of a few unknowns.
         args: model arguments for diagnosing a problem with fewer observations than unknowns (the
@@ -278,7 +284,8 @@ def make_solver(
     structure = (free_def, tuple((tuple(np.shape(a)), jnp.asarray(a).dtype) for a in free_leaves))
     functions = _block_functions(model, structure, fixed_def, groups)
     decrease = tolerance if decrease_tolerance is None else decrease_tolerance
-    options = EngineOptions("dense", max_steps, tolerance, tolerance, decrease, factorization=factorization)
+    options = EngineOptions("dense", max_steps, tolerance, tolerance, decrease, strategy=strategy,
+                            factorization=factorization)
     solver = Solver(functions, (free, fixed_part), groups, sigmas, (prior_index, prior_sigma_vector, prior_vector),
                     names, dof, x0, options)
     if dof < 0:
@@ -311,12 +318,29 @@ def undetermined_parameters(jacobian, names, relative_threshold=RANK_TOLERANCE) 
     return [names[k] for k in sorted(involved)]
 
 
-def least_squares(model, parameters, observations, *, args=None, **options) -> Adjustment:
+LEAST_SQUARES_MAX_STEPS = 1000
+""":func:`least_squares`' default step limit: NIST's StRD from both certified starts takes up to 653 trust-region
+steps (Bennett5 from start 1; MGH17 from start 1 554; tests/test_nist.py)."""
+
+
+def least_squares(model, parameters, observations, *, args=None, strategy: str = "trust-region",
+                  max_steps: int = LEAST_SQUARES_MAX_STEPS, throw: bool = True, **options) -> Adjustment:
     """Adjust ``parameters`` to ``observations`` (see :func:`make_solver` for the arguments).
+
+    The defaults are for one problem from any start: the trust region (``strategy="trust-region"``, MINPACK's
+    scheme: every problem of NIST's StRD nonlinear-regression suite from both certified starts, where the damped
+    loop runs away from or creeps along the far ones) for up to :data:`LEAST_SQUARES_MAX_STEPS` steps;
+    ``strategy="damped"`` takes fewer steps from a start near the answer.
+
+    Args:
+        throw: raise :class:`~seaice_jax.errors.NotConvergedError` for a fit that did not converge (the
+            default); ``False`` returns it, with ``converged`` False (as optimistix's ``throw=False``).
 
     Raises:
         RankDeficiencyError: naming the parameters the observations cannot determine at the solution (or with
             fewer observations than unknowns), never a silent pseudo-inverse.
+        NotConvergedError: the fit stopped unconverged (``throw=True``), naming its steps, σ̂0 and the parameter
+            its last step moved most.
         SeaiceError: naming the group and index of a non-finite observation.
     """
     for group, given in ({} if is_traced(observations) else observations).items():
@@ -325,20 +349,29 @@ def least_squares(model, parameters, observations, *, args=None, **options) -> A
         if bad.size:
             raise SeaiceError(f"observation group {group!r}[{int(bad[0])}]: value {values[bad[0]]} is not finite "
                               f"({bad.size} such)")
-    solver = make_solver(model, parameters, observations, args=args, **options)
+    solver = make_solver(model, parameters, observations, args=args, strategy=strategy, max_steps=max_steps,
+                         **options)
     observed = {g: observations[g].values for g in observations}
-    return checked_solve(solver, observed, args)
+    return checked_solve(solver, observed, args, throw=throw)
 
 
-def checked_solve(solver: Solver, observed, args=None, start=None) -> Adjustment:
-    """``solver(observed, args, start)`` with the rank checked at the solution (eager use).
+def checked_solve(solver: Solver, observed, args=None, start=None, throw: bool = True) -> Adjustment:
+    """``solver(observed, args, start)`` with the rank checked at the solution, and its convergence unless
+    ``throw=False`` (eager use).
 
     A singular Jacobian at the start is no reason to refuse (the damped steps leave it); the decision is taken
     where the answer is.
+
+    Raises:
+        RankDeficiencyError: naming the parameters the observations cannot determine at the solution.
+        NotConvergedError: the solve stopped unconverged (``throw=True``).
     """
     result = solver(observed, args, start)
     undetermined = result.undetermined_parameters()
     if undetermined:
         raise RankDeficiencyError(f"rank-deficient adjustment at the solution: the observations cannot determine "
                                   f"{', '.join(undetermined)}", undetermined)
+    if throw and not bool(result.converged):
+        raise engine.not_converged_error(result, "the least-squares fit", "raise max_steps, start closer to the "
+                                         "answer, or pass throw=False to get the unconverged fit")
     return result

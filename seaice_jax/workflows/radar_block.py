@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.adjust.block import BlockOptions, BlockResult, simultaneous_block
+from seaice_jax.adjust.engine import not_converged_error
 from seaice_jax.adjust.quality import global_test
 from seaice_jax.adjust.sequential import SequentialResult, sequential_block
 from seaice_jax.drift.kinematics import DriftVectors, TransformFit, drift_vectors, error_ellipses, fit_transform
@@ -124,7 +125,12 @@ def _drift_pair(project: Project, k: int, first, displacement, covariance) -> Dr
 def adjust_block(project: Project, method: str = "simultaneous",
                  options: BlockOptions | None = None) -> BlockAnalysis:
     """Adjust the project's coverages with ``method`` and derive the drift between consecutive coverages (on
-    land — ``surface = "land"`` — one set of positions serves every coverage and there is no drift)."""
+    land — ``surface = "land"`` — one set of positions serves every coverage and there is no drift).
+
+    Raises:
+        NotConvergedError: the simultaneous adjustment stopped unconverged (``seaice block`` exits 1), naming its
+            iterations, σ̂0 and the unknown its last step moved most.
+    """
     if method not in METHODS:
         raise SeaiceError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     options = options or BlockOptions()
@@ -137,6 +143,10 @@ def adjust_block(project: Project, method: str = "simultaneous",
         adjustment = simultaneous_block(project.coverages, project.plane, len(project.point_ids),
                                         replace(options, static_points=project.surface == "land"),
                                         point_ids=project.point_ids)
+        if not adjustment.converged:
+            assert adjustment.adjustment is not None  # simultaneous_block always returns the engine's result
+            raise not_converged_error(adjustment.adjustment, "the block adjustment",
+                                      "check the project's radar constants, navigation and control points")
         positions, covariances = tuple(adjustment.positions), tuple(adjustment.covariances)
         drift = list(zip(adjustment.drift, adjustment.drift_covariance, strict=True))
     pairs, unmeasured = [], []
@@ -199,7 +209,7 @@ def _simultaneous_lines(result: BlockAnalysis) -> list[str]:
     _, p_value, accepted = global_test(adjustment.sigma0**2, adjustment.degrees_of_freedom)
     lines = [f"  {adjustment.solver} solve: {len(adjustment.strips)} strips, navigation-error model "
              f"{options.navigation_model} per {options.navigation_scope}, {adjustment.iterations} Gauss-Newton "
-             f"iterations{'' if adjustment.converged else ' (NOT CONVERGED)'}",
+             "iterations",
              f"  σ̂0 = {adjustment.sigma0:.3f} with {adjustment.degrees_of_freedom} degrees of freedom; global test "
              f"{'accepted' if accepted else 'REJECTED'} (p = {float(p_value):.3g})"
              + ("" if accepted else ": the observations disagree beyond their σ" if adjustment.sigma0 > 1 else
