@@ -319,8 +319,8 @@ def _sar_commands(commands, common) -> None:
                             "geolocation grid between its points: the processor's terrain, the geoid over the sea)")
     remap.add_argument("--orbit-sigma", type=_POSITIVE, default=5.0,
                        help="m per axis, the orbit's position σ for the per-cell σ: give your orbit product's "
-                            "stated accuracy (precise orbits: a few cm); the default is an assumption for the "
-                            "downlinked orbit of the annotation, not an ESA figure")
+                            "stated accuracy (precise orbits: a few cm); the default 5.0 m is an assumption for "
+                            "the downlinked orbit of the annotation, not an ESA figure")
     remap.add_argument("--decimation", type=_in_range(int, 1, 1000), default=1,
                        help="the image keeps every N-th line and sample of the product (a quick-look)")
     remap.set_defaults(run=_sar_remap)
