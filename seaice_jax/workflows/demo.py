@@ -24,6 +24,7 @@ from seaice_jax.geometry.range_doppler import ground_point, imaging_time_and_ran
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import track
+from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.project import write_project
 from seaice_jax.outputs import output_folder
 from seaice_jax.report.figures import MapLayer, MapPanel, plot_image_field, plot_maps
@@ -95,14 +96,16 @@ def _image_sequence(out_dir: Path, images: int, size: int, say: Callable[[str], 
     speeds = run_velocities(out_dir / "drift" / "floes.csv", out_dir / "velocities", box_size=75_000.0)
     film = run_movie(out_dir / "remapped", out_dir / "film.gif", land_mask=out_dir / "project" / "land_mask.npy",
                      records=out_dir / "drift" / "floes.csv")
-    # tracked displacements of the first pair against the truth, with the fitted and with the true scan models
+    # tracked displacements of the first pair against the truth, with the fitted and with the true scan models (land
+    # masked as `seaice track` masks it)
     grid = remapped.result.grid
+    land = land_mask_of_grid(grid)
     first, second = sequence.images[:2]
     errors = {}
     for label, models in (("per image", adjusted.result.start), ("adjusted", remapped.result.models),
                           ("true", [first.model, second.model])):
         values, valid = remap([first.data, second.data], models[:2], grid)
-        d = track(values[0], values[1], valid_first=valid[0], valid_second=valid[1])
+        d = track(values[0], values[1], valid_first=valid[0], valid_second=valid[1], land=land)
         vectors = d.in_map(grid)
         xy = np.stack([vectors["x"], vectors["y"]], 1)[d.good]
         truth = true_displacement(sequence.scene, xy, first.time, second.time)
