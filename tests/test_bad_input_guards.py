@@ -3,6 +3,7 @@ refused with an error naming the file, point, image or grid (before anything is 
 what was left out."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -12,16 +13,24 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from seaice_jax.adjust.block import BlockOptions
+from seaice_jax.adjust.block_layout import layout_block
 from seaice_jax.adjust.orbit_fit import check_point_errors, fit_scan_model
 from seaice_jax.cli import main
 from seaice_jax.drift.kinematics import deformation
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
+from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.scan import ScanModel, satellite_orbit
+from seaice_jax.imagery.tracking import TrackingOptions
 from seaice_jax.io.products import write_geotiff
+from seaice_jax.io.project import read_project, write_project
 from seaice_jax.io.sequence import MODEL_KEYS, make_grid, read_sequence
+from seaice_jax.memory import check_disk, simulate_disk
 from seaice_jax.sensors.control import ControlPoints
+from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 from seaice_jax.simulate.satellite import noaa_pass
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID, run_remap, run_track
+from seaice_jax.workflows.image_sequence import SIMULATED_GRID, RemappedStack, run_remap, run_track, save_stack
+from seaice_jax.workflows.radar_block import block_unknowns
 
 SIZE = 32
 HEAD = 'epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = {centre}\npixel_m = [5000.0, 5000.0]\nshape = [12, 12]\n'
@@ -259,3 +268,68 @@ def test_ctrl_c_while_the_command_starts_is_not_lost(tmp_path):
     assert seconds < 10, seconds
     assert error.rstrip().endswith("interrupted by SIGINT; the output was left as it was before the run")
     assert not (tmp_path / "remapped").exists() and not list(tmp_path.glob(".remapped*"))
+
+
+def test_jobs_beyond_the_memory_budget_are_refused_before_they_start(tmp_path, capsys, monkeypatch):
+    """Estimates from the measured peaks (seaice_jax.memory; benchmarks/bench_memory.py runs the largest accepted
+    jobs): `simulate --size 4096 --images 1000` was accepted; now refused before anything is simulated or written."""
+    out = tmp_path / "simulated"
+    assert main(["simulate", "lancaster", "--size", "4096", "--images", "1000", "--out", str(out)]) == 2
+    assert ("--size 4096 --images 1000: simulating 1000 images of 4096 x 4096 pixels needs about 55.4 GiB of memory "
+            "at its peak, more than the 4 GiB budget ($SEAICE_MEMORY_GIB sets another)") in capsys.readouterr().err
+    assert simulate_disk(4096, 1000, 150 * 150) / 2**30 == pytest.approx(126.2, abs=0.1)  # the images' .npy files
+    with pytest.raises(SeaiceError, match=rf"--size 4096 needs about 931322574.6 GiB of disk, \d+\.\d GiB free in "
+                                          rf"{re.escape(str(tmp_path))}"):
+        check_disk(1e18, out, "--size 4096")  # (memory enough: the disk is the limit then)
+    monkeypatch.setenv("SEAICE_MEMORY_GIB", "plenty")
+    assert main(["simulate", "lancaster", "--out", str(out)]) == 2
+    assert "$SEAICE_MEMORY_GIB: the memory budget must be a positive number of GiB, got 'plenty'" in \
+        capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_tracking_every_pixel_of_a_large_grid_is_refused(tmp_path):
+    """`track --spacing 1` reached 6 GB: 32 kB per lattice point, measured."""
+    spec = {**SIMULATED_GRID, "shape": [600, 600]}
+    grid = make_grid(**spec)
+    folder = tmp_path / "remapped"
+    folder.mkdir()
+    values = np.random.default_rng(1).uniform(0.0, 1.0, (2, *grid.shape))
+    save_stack(folder / "remapped.npz", RemappedStack(values, np.ones(values.shape, bool), np.array([0.0, 86400.0]),
+                                                      ("A", "B"), "1983-03-08T00:00:00Z", grid, spec, (),
+                                                      np.zeros((0, 0)), np.full(values.shape, np.nan)))
+    with pytest.raises(SeaiceError, match=r"--spacing 1: tracking 329476 lattice points needs about 10.9 GiB of "
+                                          r"memory"):
+        run_track(folder, tmp_path / "drift", TrackingOptions(spacing=1), progress=False, land=None)
+    assert not (tmp_path / "drift").exists()
+
+
+@pytest.fixture(scope="module")
+def radar_project(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("radar") / "project"
+    write_project(aidjex_scenario(seed=1, plan=FlightPlan(strips=2), features=40), folder)
+    return folder / "project.toml"
+
+
+def test_a_block_with_knots_every_millisecond_is_refused(radar_project, tmp_path, capsys):
+    """`block --knot-spacing 1e-3` reached 6.3 GB: refused from the count of its unknowns, before anything runs."""
+    out = tmp_path / "block"
+    assert main(["block", str(radar_project), "--out", str(out), "--navigation-model", "spline",
+                 "--navigation-scope", "strip", "--knot-spacing", "1e-3"]) == 2
+    assert re.search(r"the simultaneous adjustment of 7200032 unknowns \(navigation model spline, --knot-spacing 0.001 "
+                     r"s\) needs about \d+\.\d GiB of memory at its peak, more than the 4 GiB budget",
+                     capsys.readouterr().err)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("options", [
+    {}, {"navigation_model": "linear"}, {"take_off_time": 3000.0},
+    {"navigation_model": "spline", "navigation_scope": "strip", "knot_spacing": 30.0},
+    {"navigation_model": "constant", "navigation_scope": "strip"},
+])
+def test_the_block_guard_counts_the_layouts_unknowns(radar_project, options):
+    project = read_project(radar_project)
+    block = BlockOptions(**options)
+    layout = layout_block(project.coverages, len(project.point_ids), project.plane, block, MEAN_RADIUS,
+                          project.point_ids)
+    assert block_unknowns(project.coverages, block) == len(layout.names)

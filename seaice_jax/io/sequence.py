@@ -44,6 +44,7 @@ from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, satellite_orbit
 from seaice_jax.io.tables import check_input_file, project_file, read_table
+from seaice_jax.memory import DEFAULT_BUDGET, check_memory, remap_peak
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.timefmt import format_time, parse_time, time_after
 
@@ -72,8 +73,9 @@ class SequenceImage:
     control_search: int = 32
 
 
-MEMORY_BUDGET = 4 * 2**30
-"""Bytes a sequence may need for its remapped stack (float64) or one image file: a bigger one is refused."""
+MEMORY_BUDGET = DEFAULT_BUDGET
+"""Bytes one image file may take (a bigger one is refused); a project's remap is checked against its estimated peak
+(:func:`~seaice_jax.memory.remap_peak`, :func:`~seaice_jax.memory.check_memory`)."""
 
 
 @dataclass(frozen=True)
@@ -235,7 +237,8 @@ def _check_hemisphere(path: Path, projection, latitude: float, half_height: floa
 
 def _checked_grid(path: Path, spec: dict) -> MapGrid:
     """The ``[grid]`` table as a :class:`MapGrid`: finite numbers, latitude within ±90°, longitude within
-    [-180°, 360°), pixel sizes > 0, a shape of two positive integers within :data:`MEMORY_BUDGET`."""
+    [-180°, 360°), pixel sizes > 0, a shape of two positive integers on which one image's remap fits in the memory
+    budget (:func:`~seaice_jax.memory.check_memory`)."""
     for key in ("centre_deg", "pixel_m", "shape"):
         value = spec.get(key)
         if not (isinstance(value, list) and len(value) == 2 and all(
@@ -251,9 +254,7 @@ def _checked_grid(path: Path, spec: dict) -> MapGrid:
         raise SeaiceError(f"{path}: [grid] shape must be two positive integers (rows, columns), got {shape!r}")
     projection = spec.get("projection", "nsidc-north")
     _check_hemisphere(path, projection, latitude, pixel_m[1] * shape[0] / 2)
-    if 8 * shape[0] * shape[1] > MEMORY_BUDGET:
-        raise SeaiceError(f"{path}: [grid] shape {shape!r} needs {8 * shape[0] * shape[1] / 2**30:.1f} GiB per image, "
-                          f"more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+    check_memory(remap_peak(shape[0] * shape[1], 1), f"{path}: [grid] shape {shape!r}: remapping one image on it")
     try:
         return make_grid(projection, spec["centre_deg"], pixel_m, shape)
     except SeaiceError as error:
@@ -262,18 +263,17 @@ def _checked_grid(path: Path, spec: dict) -> MapGrid:
 
 def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> SequenceProject:
     """Read and check a sequence project (see the module docstring). The files it names are resolved relative to
-    its folder and must lie inside it unless ``allow_outside``; the remapped stack (float64, images x grid) must fit
-    in :data:`MEMORY_BUDGET`.
+    its folder and must lie inside it unless ``allow_outside``; the remap of all its images must fit in the memory
+    budget (:func:`~seaice_jax.memory.remap_peak`, :func:`~seaice_jax.memory.check_memory`).
 
     Raises:
         SeaiceError: naming the file, table, key or line at fault.
     """
     path = Path(path)
     epoch, spec, grid, entries = _project_header(path)
-    stack = 8 * len(entries) * grid.shape[0] * grid.shape[1]
-    if stack > MEMORY_BUDGET:
-        raise SeaiceError(f"{path}: {len(entries)} images on a {grid.shape[0]} x {grid.shape[1]} grid need "
-                          f"{stack / 2**30:.1f} GiB, more than the {MEMORY_BUDGET / 2**30:.0f} GiB budget")
+    cells = grid.shape[0] * grid.shape[1]
+    what = f"{path}: {len(entries)} images on a {grid.shape[0]} x {grid.shape[1]} grid"
+    check_memory(remap_peak(cells, len(entries)), what)
     images, names = [], set()
     for k, entry in enumerate(entries):
         image = _read_image(entry, k, path, epoch, allow_outside)
@@ -283,6 +283,7 @@ def read_sequence(path: str | os.PathLike, allow_outside: bool = False) -> Seque
         images.append(image)
     if not images:
         raise SeaiceError(f"{path}: no [[image]] entries")
+    check_memory(remap_peak(cells, len(images), sum(im.data.size for im in images)), f"{what} (with their pixels)")
     times = [im.time for im in images]
     if any(b <= a for a, b in zip(times, times[1:], strict=False)):
         raise SeaiceError(f"{path}: image times must increase in the order listed")

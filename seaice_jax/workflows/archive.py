@@ -51,6 +51,7 @@ from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
 from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
+from seaice_jax.memory import check_memory, track_peak
 from seaice_jax.outputs import check_interrupted, check_output, output_folder
 from seaice_jax.timefmt import time_after
 from seaice_jax.workflows.image_sequence import (
@@ -568,6 +569,9 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
     with output_folder(out_dir, overwrite, inputs=(remapped_dir,)) as folder:
         stack = staged_stack(remapped_dir, folder.path / PARTS)
         check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
+        points = grid_points(stack.grid.shape, options or TrackingOptions())[0].size
+        check_memory(track_peak(points, stack.grid.shape[0] * stack.grid.shape[1], 2),  # a pair per worker
+                     f"--spacing {(options or TrackingOptions()).spacing}: tracking {points} lattice points")
         mask = None if land is None else land_of_grid(land, stack.grid)
         with dask_client(workers, scheduler) as client:
             tracked, files = track_archive(client, stack, folder.path, options, layout, mask, progress)

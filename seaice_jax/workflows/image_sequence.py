@@ -56,7 +56,6 @@ from seaice_jax.io.products import (
     write_trajectories_geojson,
 )
 from seaice_jax.io.sequence import (
-    MEMORY_BUDGET,
     SequenceImage,
     SequenceProject,
     make_grid,
@@ -64,6 +63,7 @@ from seaice_jax.io.sequence import (
     read_sequence,
     write_sequence,
 )
+from seaice_jax.memory import check_disk, check_memory, film_peak, simulate_disk, simulate_peak, track_peak
 from seaice_jax.outputs import output_file, output_folder
 from seaice_jax.report.figures import (
     plot_box_averages,
@@ -369,6 +369,10 @@ def load_remapped(directory: str | os.PathLike, pixels: dict | None = None) -> R
         raise SeaiceError(f"{path}: no {', '.join(missing)} (written by another version?): run `seaice remap` again")
     spec = json.loads(str(stored["grid"]))
     grid = make_grid(spec.get("projection", "nsidc-north"), spec["centre_deg"], spec["pixel_m"], spec["shape"])
+    for name in ("values", "valid", "sigma"):
+        if np.shape(stored[name])[1:] != grid.shape or np.shape(stored[name])[0] != len(stored["names"]):
+            raise SeaiceError(f"{path}: {name} of shape {np.shape(stored[name])} for {len(stored['names'])} images on "
+                              f"a grid of {grid.shape}: not a remapped stack; run `seaice remap` again")
     return RemappedStack(stored["values"], stored["valid"], stored["times"], tuple(str(n) for n in stored["names"]),
                          str(stored["epoch"]), grid, spec, _stored_models(stored), stored["covariance"],
                          stored["sigma"])
@@ -644,6 +648,8 @@ def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None,
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
     check_tracking_interval(stack.names, stack.times, float(stack.grid.pixel_width))
     rows, columns = grid_points(stack.grid.shape, options)
+    check_memory(track_peak(rows.size, stack.grid.shape[0] * stack.grid.shape[1], len(stack.names)),
+                 f"--spacing {options.spacing}: tracking {rows.size} lattice points")
     lattice = make_lattice(stack.grid, rows, columns, (np.unique(rows).size, np.unique(columns).size))
     pairs = tuple(track_pair(stack, k, options, land)
                   for k in tqdm(range(len(stack.names) - 1), desc="track", disable=not progress, leave=False))
@@ -901,16 +907,14 @@ def run_movie(remapped_dir: str | os.PathLike, out_path: str | os.PathLike, land
     """A time-lapse film (GIF or MP4) of the remapped sequence with date labels, the land filled (``land_mask``:
     a ``.npy`` bool array on the grid; without one, the GSHHG land) and the tracked floes of a record file marked;
     with ``map_decorations`` the coastline, a labelled graticule and a scale bar
-    (:func:`~seaice_jax.report.maps.map_overlay`); ``fps`` > 0, ``scale`` >= 1 and the film within
-    :data:`~seaice_jax.io.sequence.MEMORY_BUDGET`."""
+    (:func:`~seaice_jax.report.maps.map_overlay`); ``fps`` > 0, ``scale`` >= 1 and the film within the memory budget
+    (:func:`~seaice_jax.memory.film_peak`)."""
     if not (np.isfinite(fps) and fps > 0 and int(scale) == scale and scale >= 1):
         raise SeaiceError(f"film: fps must be > 0 and scale an integer >= 1, got fps {fps}, scale {scale}")
     stack = load_remapped(remapped_dir)
-    film_bytes = 3 * len(stack.names) * stack.grid.shape[0] * stack.grid.shape[1] * scale**2
-    if film_bytes > MEMORY_BUDGET:
-        raise SeaiceError(f"--scale {scale}: {len(stack.names)} frames of {stack.grid.shape[1] * scale} x "
-                          f"{stack.grid.shape[0] * scale} pixels need {film_bytes / 2**30:.1f} GiB, more than the "
-                          f"{MEMORY_BUDGET / 2**30:.0f} GiB budget")
+    check_memory(film_peak(len(stack.names), stack.grid.shape[0] * stack.grid.shape[1] * scale**2),
+                 f"--scale {scale}: a film of {len(stack.names)} frames of {stack.grid.shape[1] * scale} x "
+                 f"{stack.grid.shape[0] * scale} pixels")
     land = None if land_mask is None else land_of_grid(land_mask, stack.grid)
     points = None if records is None else _floe_pixels(records, stack)
     labels = [time_after(stack.epoch, t)[:16].replace("T", " ") for t in stack.times]
@@ -974,7 +978,14 @@ def write_simulated_sequence(out_dir: str | os.PathLike, seed: int = 0, images: 
     """Simulate a Lancaster-Sound-like sequence (:func:`~seaice_jax.simulate.satellite.simulate_sequence`) and
     write it as a project with ``land_mask.npy`` on its grid (for films), ``static_mask.npy`` (land and fast ice
     :data:`STATIC_MARGIN` inside its edge: where ``seaice adjust`` seeks ties) and the truth
-    (:func:`write_simulated_truth`), as one run (:func:`~seaice_jax.outputs.output_folder`)."""
+    (:func:`write_simulated_truth`), as one run (:func:`~seaice_jax.outputs.output_folder`). A simulation whose
+    estimated peak memory (:func:`~seaice_jax.memory.simulate_peak`) or files exceed the budget or the free disk is
+    refused before it starts."""
+    if sequence is None:
+        what = f"--size {size} --images {images}: simulating {images} images of {size} x {size} pixels"
+        check_memory(simulate_peak(size, images), what)
+        shape = SIMULATED_GRID["shape"]
+        check_disk(simulate_disk(size, images, shape[0] * shape[1]), out_dir, what)
     with output_folder(out_dir, overwrite) as folder:
         sequence = sequence or simulate_sequence(seed, n_images=images, size=size, clouds=clouds)
         grid = make_grid(**{k: SIMULATED_GRID[k] for k in ("projection", "centre_deg", "pixel_m", "shape")})

@@ -20,8 +20,10 @@ from seaice_jax.drift.kinematics import DriftVectors, TransformFit, drift_vector
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv, write_geojson
 from seaice_jax.io.project import Project, read_project
+from seaice_jax.memory import block_peak, check_memory
 from seaice_jax.outputs import output_folder
 from seaice_jax.report.figures import plot_navigation_errors, plot_tie_discrepancies, plot_vectors
+from seaice_jax.sensors.navigation import error_basis_size
 
 METHODS = ("simultaneous", "sequential")
 
@@ -122,6 +124,24 @@ def _drift_pair(project: Project, k: int, first, displacement, covariance) -> Dr
                      fit_transform(start, end, "rigid", 100.0), fit_transform(start, end, "affine", 100.0))
 
 
+def block_unknowns(coverages, options: BlockOptions) -> int:
+    """The number of global unknowns (navigation-error coefficients of both components, radar constants) of the
+    simultaneous adjustment of ``coverages``, counted from the strips' spans as the block's layout numbers them
+    (:func:`~seaice_jax.adjust.block_layout.layout_block`), without building it."""
+    count, flight, components = 0, options.navigation_scope == "flight", 2
+    for coverage in coverages:
+        start = min(s.start_time for s in coverage.strips)
+        if flight and options.take_off_time is not None:
+            start = min(start, options.take_off_time)
+        flown = (start, max(s.end_time for s in coverage.strips))
+        for j, strip in enumerate(coverage.strips):
+            span = flown if flight else (strip.start_time, strip.end_time)
+            q = error_basis_size(options.navigation_model, *span, options.knot_spacing)
+            count += components * (2 + (q if j == 0 else 0)) if flight else components * q
+    strips = sum(len(coverage.strips) for coverage in coverages)
+    return count + (2 * strips if options.radar_constants == "strip" else 2)
+
+
 def adjust_block(project: Project, method: str = "simultaneous",
                  options: BlockOptions | None = None) -> BlockAnalysis:
     """Adjust the project's coverages with ``method`` and derive the drift between consecutive coverages (on
@@ -140,6 +160,9 @@ def adjust_block(project: Project, method: str = "simultaneous",
         covariances = None
         drift = [(positions[k + 1] - positions[k], None) for k in range(len(positions) - 1)]
     else:
+        unknowns = block_unknowns(project.coverages, options)
+        check_memory(block_peak(unknowns), f"the simultaneous adjustment of {unknowns} unknowns (navigation model "
+                                           f"{options.navigation_model}, --knot-spacing {options.knot_spacing:g} s)")
         adjustment = simultaneous_block(project.coverages, project.plane, len(project.point_ids),
                                         replace(options, static_points=project.surface == "land"),
                                         point_ids=project.point_ids)
