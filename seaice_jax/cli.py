@@ -165,6 +165,7 @@ def _block(args) -> int:
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,
                            knot_spacing=args.knot_spacing, radar_constants=args.radar_constants,
                            take_off_time=args.take_off_time, image_sigma=tuple(args.image_sigma),
+                           time_mark_sigma=args.time_mark_sigma,
                            variance_components=args.variance_components, robust=args.robust)
     run = run_block(args.project, args.out, args.method, options, overwrite=args.overwrite, say=_stages(args))
     _say(args, run.report)
@@ -586,8 +587,12 @@ def build_parser() -> argparse.ArgumentParser:
     block.add_argument("--radar-constants", choices=["strip", "shared"], default="strip",
                        help="sweep delay and range scale (the radar's range calibration) per strip or one pair for "
                             "the block")
-    block.add_argument("--image-sigma", type=_POSITIVE, nargs=2, default=(0.042, 0.04), metavar=("ALONG", "RANGE"),
-                       help="mm, σ of the image measurements along track and in slant range (simultaneous)")
+    block.add_argument("--image-sigma", type=_POSITIVE, nargs=2, default=(0.04, 0.04), metavar=("ALONG", "RANGE"),
+                       help="mm, σ of reading the image measurements along track and in slant range (simultaneous)")
+    block.add_argument("--time-mark-sigma", type=_in_range(float, 0.0, None), default=0.025, metavar="MM",
+                       help="mm, σ of each time mark's position along the film (simultaneous): eq. A1's "
+                            "interpolation between the marks adds it to the along-track σ, (1 − u)² + u² of its "
+                            "variance at the fraction u between two marks; 0: exact marks")
     block.add_argument("--variance-components", action="store_true",
                        help="estimate a variance factor per observation group (image x, image y, nadir, control; "
                             "iterated Förstner/Helmert) and adjust with the σ rescaled by them")

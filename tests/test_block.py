@@ -75,7 +75,8 @@ def small():
     # errors are drawn per strip: the small block's strips are recorded without them (the shared pair is exact)
     errors = replace(SYSTEMATIC, sweep_delay_error=0.0, range_scale_error=0.0)
     scenario = aidjex_scenario(12, plan=FlightPlan(strips=2), errors=errors, features=70, station_sigma=0.01)
-    options = BlockOptions(image_sigma=(IMAGE_SIGMA, IMAGE_SIGMA), altimeter_sigma=0.0, radar_constants="shared")
+    options = BlockOptions(image_sigma=(IMAGE_SIGMA, IMAGE_SIGMA), time_mark_sigma=0.0, altimeter_sigma=0.0,
+                           radar_constants="shared")  # noisy() draws the reading noise only: exact time marks
     return scenario, options
 
 

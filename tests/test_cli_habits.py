@@ -175,6 +175,6 @@ def test_the_block_commands_defaults_are_the_librarys():
     args = build_parser().parse_args(["block", "project.toml", "--out", "out"])
     defaults = BlockOptions()
     for name in ("navigation_model", "navigation_scope", "knot_spacing", "radar_constants", "take_off_time",
-                 "variance_components", "robust"):
+                 "time_mark_sigma", "variance_components", "robust"):
         assert getattr(args, name) == getattr(defaults, name), name
     assert tuple(args.image_sigma) == tuple(defaults.image_sigma)

@@ -236,8 +236,20 @@ def _control_residual(_, point, row):
 
 
 def _prior_residual(theta, _, row):
-    """A correction minus its prior value 0 ``(1,)``."""
-    return theta
+    """A correction minus its prior value 0 ``(1,)``, or (``row["relative"]`` 1) its difference from another
+    unknown: ``theta`` = (the unknown, the other one; the unknown twice for a plain prior). A turn's perturbation is
+    the difference of consecutive strips' offsets (a random walk along the flight)."""
+    return jnp.atleast_1d(theta[0] - row["relative"] * theta[1])
+
+
+def image_sigmas(options: BlockOptions, mark_weight) -> np.ndarray:
+    """``(m, 2)`` σ (mm) of the image observations along track and in slant range: the reading σ
+    (``options.image_sigma``) and, along track, the time marks' σ carried through eq. A1's interpolation
+    (``mark_weight`` = (1 − u)² + u² per observation)."""
+    reading = np.asarray(options.image_sigma, float)
+    marks = options.time_mark_sigma or 0.0
+    along = np.sqrt(reading[0] ** 2 + marks**2 * np.asarray(mark_weight, float))
+    return np.stack([along, np.full(along.shape, reading[1])], axis=1)
 
 
 @functools.partial(jax.jit, static_argnames="radius")
@@ -270,7 +282,7 @@ def block_problem(layout: BlockLayout, options: BlockOptions, plane, radius: flo
     rows, points = size(m), size(n_points)
     image = {k: jnp.asarray(pad(obs[k], rows, obs[k][0])) for k in _IMAGE_FIELDS}
     image["plane"] = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (rows,) + jnp.shape(a)), plane)
-    sigma = pad(np.tile(np.asarray(options.image_sigma, float), (m, 1)), rows, np.inf)
+    sigma = pad(image_sigmas(options, obs["mark_weight"]), rows, np.inf)
     blocks = {"image": ResidualBlock(_image_function(float(radius)), image, jnp.asarray(sigma),
                                      jnp.asarray(pad(obs["index"], rows, obs["index"][0])),
                                      jnp.asarray(pad(obs["point"], rows, points - 1)))}
@@ -288,9 +300,12 @@ def block_problem(layout: BlockLayout, options: BlockOptions, plane, radius: flo
         jnp.zeros((count, 0), int), jnp.asarray(pad(control["point"], count, points - 1)))
     priors = np.nonzero(np.isfinite(layout.prior_sigma))[0]
     count = _few(len(layout.names))
-    blocks["prior"] = ResidualBlock(_prior_residual, {"value": jnp.zeros(count)},
+    previous = layout.prior_previous[priors]
+    relative = previous >= 0
+    index = np.stack([priors, np.where(relative, previous, priors)], axis=1)
+    blocks["prior"] = ResidualBlock(_prior_residual, {"relative": jnp.asarray(pad(relative * 1.0, count, 0.0))},
                                     jnp.asarray(pad(layout.prior_sigma[priors][:, None], count, np.inf)),
-                                    jnp.asarray(pad(priors[:, None], count, 0)))
+                                    jnp.asarray(pad(index, count, 0)))
     start = pad(layout.start_points, points, 0.0)
     return Problem(blocks, jnp.asarray(layout.start_theta), jnp.asarray(start))
 
@@ -377,6 +392,10 @@ def _describe(layout: BlockLayout, coverages, point_ids, flag: engine.Flag):
         c, j = int(layout.nadir["coverage"][flag.row]), int(layout.nadir["strip"][flag.row])
         return -1, c, j, "", f"nadir return {flag.row} of {coverages[c].name}/{coverages[c].strips[j].name}"
     index = int(np.nonzero(np.isfinite(layout.prior_sigma))[0][flag.row])
+    previous = int(layout.prior_previous[index])
+    if previous >= 0:  # a turn's perturbation: this strip's offset minus the previous strip's
+        strip = layout.names[previous].split(" navigation ")[0].rsplit("/", 1)[-1]
+        return -1, -1, -1, "", f"prior of {layout.names[index]} minus {strip}'s (the turn before it)"
     return -1, -1, -1, "", f"prior of {layout.names[index]}"
 
 

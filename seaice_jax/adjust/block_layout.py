@@ -29,7 +29,8 @@ class BlockLayout:
     """The host-side layout of a block: unknown names, observation tables, start values."""
 
     names: list
-    prior_sigma: np.ndarray
+    prior_sigma: np.ndarray  # σ of each unknown's prior (inf: none)
+    prior_previous: np.ndarray  # the unknown whose value the prior is relative to (−1: the prior is on the value)
     start_points: np.ndarray
     point_key: list  # (coverage, point) of each point unknown (coverage −1 for static points)
     strip_slices: list  # (coverage index, strip index, navigation indices, radar indices, flight span or None)
@@ -60,6 +61,16 @@ def _strip_geometry(navigation, mark_x, mark_times, x, y, sweep_delay, range_sca
 
 
 
+def mark_weight(mark_x, x):
+    """``(n,)`` (1 − u)² + u², u the fraction of the way from the time mark before each image x to the next (eq. A1
+    interpolates the time between them; beyond the first or last mark the end interval is extended): an error of σ
+    in each mark's along-track position moves the point's time as an error of σ·√((1 − u)² + u²) in its x."""
+    mark_x, x = np.asarray(mark_x, float), np.asarray(x, float)
+    i = np.clip(np.searchsorted(mark_x, x, side="right") - 1, 0, mark_x.size - 2)
+    u = (x - mark_x[i]) / (mark_x[i + 1] - mark_x[i])
+    return (1.0 - u) ** 2 + u**2
+
+
 def _strip_observations(strip, x, y, options, plane, radius, flight_span, sweep_delay_start):
     """Per-observation geometry of one strip and the start map positions (with the sweep delay
     ``sweep_delay_start``, mm), with the navigation-error basis (:func:`navigation_basis`)."""
@@ -75,7 +86,8 @@ def _strip_observations(strip, x, y, options, plane, radius, flight_span, sweep_
                                     options.knot_spacing)
     # rows without a ground solution (a slant range shorter than the flying height) are refused by layout_block
     usable = np.isfinite(start).all(axis=1) & (np.abs(np.linalg.det(np.nan_to_num(jacobian))) > 0)
-    return dict(basis=basis, rates=rates, position=position, velocity=velocity, north=north, east=east,
+    return dict(mark_weight=mark_weight(strip.mark_x, x), basis=basis, rates=rates, position=position,
+                velocity=velocity, north=north, east=east,
                 north_rate=north_rate, east_rate=east_rate, y=np.asarray(y, float),
                 sweep_delay=np.full(n, strip.sweep_delay), range_scale=np.full(n, strip.range_scale),
                 sign=np.full(n, float(look_sign(strip.look_side))), time_per_mm=time_per_mm), start, usable
@@ -103,9 +115,17 @@ def _sweep_delay_starts(coverages, strip_slices, altitudes, size):
     return theta
 
 
-def layout_block(coverages, n_points, plane, options, radius, point_ids=None) -> BlockLayout:
-    """Unknowns, observation tables and start values of a block."""
-    names, prior = [], []
+def block_unknowns(coverages, options):
+    """The global unknowns of a block and their priors, from the coverages' strips alone (``name``, ``strips`` with
+    ``name``, ``start_time``, ``end_time``, ``range_scale``).
+
+    Returns:
+        ``(names, prior_sigma (n,), prior_previous (n,), strip_slices, q)``: a prior with ``prior_previous`` ≥ 0 is
+        on the difference from that unknown (a turn's perturbation: the random walk of the strips' offsets along a
+        flight); strip_slices: per strip ``(coverage index, strip index, navigation indices, radar indices, flight
+        span or None)``; q: navigation coefficients per component of a strip.
+    """
+    names, prior, previous = [], [], []
     strip_slices = []
     model = options.navigation_model
     coefficient_names = {"constant": ["offset"], "linear": ["offset", "rate"],
@@ -128,6 +148,7 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                                   f"first strip starts ({flown[0]} s)")
             flown = (options.take_off_time, flown[1])
         shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
+        last_turn = {}  # flight scope: the previous strip's turn offset, per component
         for j, strip in enumerate(coverage.strips):
             span = flown if flight else (strip.start_time, strip.end_time)
             size = error_basis_size(model, *span, options.knot_spacing) + 2 * flight
@@ -144,30 +165,42 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                     navigation += range(len(names), len(names) + q)
                     names += [f"{label} navigation {component} {term}" for term in terms]
                     prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shape
+                    previous += [-1] * q
                     continue
                 if component not in shared:
                     shared[component] = list(range(len(names), len(names) + q - 2))
                     names += [f"{coverage.name} navigation {component} {term}" for term in terms]
                     prior += [offset_sigma] + shape
+                    previous += [-1] * (q - 2)
                 navigation += [len(names), *shared[component], len(names) + 1]
+                # the turns' perturbations add up along the flight (a random walk): each turn's perturbation, the
+                # difference of consecutive strips' offsets, has the prior; the first strip is the flight's reference
+                previous += [last_turn.get(component, -1), -1]
+                last_turn[component] = len(names)
                 names += [f"{label} navigation {component} turn offset", f"{label} navigation {component} deviation"]
-                # the turns' perturbations add up along the flight; the first strip is the flight's reference
-                prior += [turn_sigma * np.sqrt(j) if j else _REFERENCE_SIGMA,
+                prior += [turn_sigma if j else _REFERENCE_SIGMA,
                           options.deviation_prior if options.deviation_prior is not None else np.inf]
             if options.radar_constants == "strip" or shared_radar is None:
                 radar_label = label if options.radar_constants == "strip" else "block"
                 radar = [len(names), len(names) + 1]
                 names += [f"{radar_label} sweep delay", f"{radar_label} range scale"]
+                previous += [-1, -1]
                 prior += [options.sweep_delay_prior if options.sweep_delay_prior is not None else np.inf,
                           options.range_scale_prior * strip.range_scale if options.range_scale_prior is not None
                           else np.inf]
                 shared_radar = radar
             strip_slices.append((c, j, np.array(navigation), shared_radar, flown if flight else None))
+    return names, np.array(prior, float), np.array(previous, int), strip_slices, q or 0
+
+
+def layout_block(coverages, n_points, plane, options, radius, point_ids=None) -> BlockLayout:
+    """Unknowns, observation tables and start values of a block."""
+    names, prior, previous, strip_slices, q = block_unknowns(coverages, options)
     altitudes = [[nadir_altitudes(strip) for strip in coverage.strips] for coverage in coverages]
     start_theta = _sweep_delay_starts(coverages, strip_slices, altitudes, len(names))
     point_unknown, starts = {}, []
-    tables = {k: [] for k in ("index", "point", "basis", "rates", "position", "velocity", "north", "east",
-                              "north_rate", "east_rate", "y",
+    tables = {k: [] for k in ("index", "point", "mark_weight", "basis", "rates", "position", "velocity", "north",
+                              "east", "north_rate", "east_rate", "y",
                               "sweep_delay", "range_scale", "sign", "time_per_mm")}
     coverage_of, strip_of, point_of = [], [], []
     unsolved = set()  # (coverage, point, strip) of measurements without a ground solution at the start
@@ -233,8 +266,8 @@ def layout_block(coverages, n_points, plane, options, radius, point_ids=None) ->
                 control["sigma"].append(sigma)
     control = {"point": np.array(control["point"], int), "xy": np.array(control["xy"], float).reshape(-1, 2),
                "sigma": np.array(control["sigma"], float)}
-    return BlockLayout(names, np.array(prior, float), sums / counts[:, None], point_key, strip_slices, observations,
-                       nadir, control, np.concatenate(coverage_of), np.concatenate(strip_of),
-                       np.concatenate(point_of), q or 0, start_theta)
+    return BlockLayout(names, prior, previous, sums / counts[:, None], point_key, strip_slices, observations, nadir,
+                       control, np.concatenate(coverage_of), np.concatenate(strip_of), np.concatenate(point_of), q,
+                       start_theta)
 
 

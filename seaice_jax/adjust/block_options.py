@@ -32,7 +32,11 @@ class BlockOptions:
         knot_spacing: s, of the spline model.
         radar_constants: ``"strip"`` (Δc, Δf per strip) or ``"shared"`` (one pair for the block).
         filter_window: s of the navigation moving average applied first (``None``: none).
-        image_sigma: ``(σx, σy)`` mm of the image measurements (along track, slant range).
+        image_sigma: ``(σx, σy)`` mm of reading the image measurements (along track, slant range).
+        time_mark_sigma: σ (mm, along the film) of each time mark's position, independent from mark to mark (the
+            marks' jitter and their reading). Eq. A1 interpolates a point's time between the two marks around it
+            (u its fraction of the way), so its along-track coordinate gains the variance
+            ((1 − u)² + u²) time_mark_sigma² (``None`` or 0: the marks are exact).
         altimeter_sigma: m.
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior; ``"scope"``: by the
             navigation scope, :data:`SCOPE_OFFSET_PRIOR`).
@@ -44,8 +48,10 @@ class BlockOptions:
             flight's curve then starts at take-off: its offset is the INS alignment error (``offset_prior``) and its
             drift grows from zero there, so the drift accumulated before the first strip is tied to the drift
             the ties see (without it the flight's offset at its first strip has to carry that drift).
-        turn_prior: σ (m) of the INS perturbation of one turn (flight scope): strip k of a flight is offset from the
-            flight's curve by σ turn_prior·√k (the perturbations add up; ``None``: no prior).
+        turn_prior: σ (m) of the INS perturbation of one turn (flight scope): the perturbations add up along the
+            flight, a random walk, so the prior is on the difference of consecutive strips' offsets (σ turn_prior
+            each; the first strip's offset is the flight's reference, 0), which gives strip k the marginal σ
+            turn_prior·√k and strips j, k the covariance turn_prior²·min(j, k) (``None``: no prior).
         deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
             strip; flight scope only): the low-frequency part of the record noise that the filter lets through
             (``None``: no prior).
@@ -61,10 +67,11 @@ class BlockOptions:
         robust: ``None``, ``"huber"`` or ``"danish"``: iteratively reweighted (the w-tests of the final weights).
 
     The default σ describe an AIDJEX-era inertial platform and film (sources 000, 002): 0.04 mm of film reading
-    in slant range and 0.042 mm along track (the reading plus what the time-mark jitter leaves); an
-    offset of 600 m for a flight's curve (alignment and the drift before its first strip) or 2 km for a strip's
-    own curve (all the error accumulated by then), a drift of 1.5 km over a flight and a Schuler oscillation of
-    1.3 km amplitude; 300 m per turn and 25 m of low-frequency record noise left over a strip by the 180-s filter; each
+    along track and in slant range, time marks placed to 0.025 mm along the film (0.05 s at 0.5 mm/s: along
+    track 0.044-0.047 mm in all, 0.045 mm RMS between the marks); an offset of 600 m for a flight's curve
+    (alignment and the drift before its first strip) or 2 km for a strip's own curve (all the error accumulated by
+    then), a drift of 1.5 km over a flight and a Schuler oscillation of 1.3 km amplitude; 300 m per turn (a random
+    walk over the strips) and 25 m of low-frequency record noise left over a strip by the 180-s filter; each
     strip's sweep delay known to 0.4 mm and its range scale to 0.5 %. On blunder-free simulated AIDJEX blocks
     they give σ̂0 ≈ 1, the global and w-tests their false-alarm rates and predicted σ that match the errors
     (``experiments/block_statistics.py``); other platforms need their own.
@@ -75,7 +82,8 @@ class BlockOptions:
     knot_spacing: float = 300.0
     radar_constants: str = "strip"
     filter_window: float | None = 180.0
-    image_sigma: tuple[float, float] = (0.042, 0.04)
+    image_sigma: tuple[float, float] = (0.04, 0.04)
+    time_mark_sigma: float | None = 0.025
     altimeter_sigma: float = 5.0
     offset_prior: float | str | None = "scope"
     shape_prior: float | None = 1500.0
@@ -112,6 +120,8 @@ class BlockOptions:
                               "values already include each strip's offset)")
         if self.radar_constants not in ("strip", "shared"):
             raise SeaiceError(f"radar_constants must be 'strip' or 'shared', got {self.radar_constants!r}")
+        if self.time_mark_sigma is not None and not self.time_mark_sigma >= 0:
+            raise SeaiceError(f"time_mark_sigma must be a σ in mm (≥ 0) or None, got {self.time_mark_sigma!r}")
         if self.robust is not None and self.robust not in ROBUST:
             raise SeaiceError(f"robust must be None or one of {', '.join(ROBUST)}, got {self.robust!r}")
         if self.solver not in SOLVERS:
