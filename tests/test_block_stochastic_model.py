@@ -47,6 +47,7 @@ def test_the_turn_prior_is_the_random_walk_the_simulator_draws(flights):
     lag-1 correlation and the 5 % two-sided exceedances within 4 standard errors. The prior of issue 12 (each strip
     independent, σ·√k) has the right variances but whitened residuals correlated ≈ 0.8, which this detects."""
     options = BlockOptions()
+    assert options.turn_prior is not None
     whitening = _turn_rows(options)
     covariance = np.linalg.inv(whitening.T @ whitening)
     steps = np.arange(PLAN.strips)
@@ -72,6 +73,7 @@ def test_the_image_x_sigma_carries_the_time_marks_jitter(flights):
     0.5 mm/s): the x error that makes, over the σ the model gives it (√((1 − u)² + u²) × time_mark_sigma), has unit
     mean square, at the marks and between them; the reading σ adds to it."""
     options = BlockOptions()
+    assert options.time_mark_sigma is not None
     rng = np.random.default_rng(1)
     ratios, at_marks = [], []
     for records, _ in flights[:100]:
