@@ -17,7 +17,8 @@ of a coarse-to-fine loop:
 3. proposes a control point per match: the image position where the window was found, the ground position the
    current model gives the window's centre, and σ from the peak: ``C = (1 − ρ²) / (ρ n) (−H_ρ)⁻¹`` pixel² (ρ = √R²
    at the peak, H_ρ its Hessian per pixel², n the independent pixels of the window), the larger axis of C taken as
-   an isotropic σ, turned into metres with the local pixel size;
+   an isotropic σ, times :data:`MATCH_SIGMA_SCALE` (calibrated: the fits' σ̂0 is 1 on simulated images), turned into
+   metres with the local pixel size;
 4. fits the scan model (:func:`~seaice_jax.adjust.orbit_fit.fit_scan_model`) and removes, one at a time, the point
    with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.quality`),
    refitting each time.
@@ -57,6 +58,13 @@ class MatchLevel:
     step: int
     smoothing: float
 
+
+MATCH_SIGMA_SCALE = 1.7
+"""Factor on the σ from the correlation peak, calibrated by Monte Carlo so that the final fits' σ̂0 is 1
+(``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed: pooled σ̂0 1.30 at factor 1
+and 0.98 at 1.7 on the tuning seeds 0-29, 1.01 at 1.7 on the fresh seeds 1000-1029). The peak's σ alone is 1.35
+times too small for the matches the w-test keeps at factor 1; a larger σ lets the w-test keep more moderately wrong
+matches too, so σ̂0 = 1 needs more than 1.35 (check-point RMS 0.19 pixel at factor 1, 0.24 at 1.7)."""
 
 DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7))
 """Coarse to fine: after the first level's global shift (``search`` of :func:`coast_control`) the windows look only a
@@ -215,11 +223,13 @@ def global_shift(image: np.ndarray, prediction: np.ndarray, search: int, smoothi
 
 
 def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, expected=(0.0, 0.0),
-                minimum_fit: float = 0.3, land_fraction=(0.1, 0.9)) -> CoastMatches:
+                minimum_fit: float = 0.3, land_fraction=(0.1, 0.9),
+                sigma_scale: float = MATCH_SIGMA_SCALE) -> CoastMatches:
     """Windows of the prediction (those the coast crosses: land fraction within ``land_fraction``) found in the
     image around the ``expected`` ``(pixel, scan)`` shift ± ``level.search`` by the coast profile's best fit
     (:func:`profile_fit`); matches with R² below ``minimum_fit``, on the search's border or without a clear peak
-    are left out. ``correlation``: √R² at the peak."""
+    are left out. ``correlation``: √R² at the peak; ``sigma``: ``sigma_scale`` times the σ from the peak (module
+    docstring, 3.)."""
     rows, columns = prediction.shape
     smooth_image = _smooth(image, level.smoothing)
     bands = coast_bands(prediction, level.smoothing)
@@ -248,7 +258,7 @@ def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, ex
             rho = float(np.sqrt(min(fit, 0.998)))
             # R² = ρ²: the curvature of ρ is half that of R² over ρ
             covariance = (1 - rho**2) / (rho * independent) * np.linalg.inv(-hessian / (2 * rho))
-            sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
+            sigma = sigma_scale * float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
             centre_pixel, centre_scan = column + 0.5, row + 0.5  # 1-based: the even window's centre is a pixel edge
             found.append((centre_pixel + shift_column + c - search + offset[0],
                           centre_scan + shift_row + r - search + offset[1], centre_pixel, centre_scan, sigma, rho))
@@ -320,7 +330,7 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
 
 def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
                   levels: tuple[MatchLevel, ...] = DEFAULT_LEVELS, minimum_points: int = 6,
-                  alpha: float = 0.001) -> CoastControl:
+                  alpha: float = 0.001, match_sigma_scale: float = MATCH_SIGMA_SCALE) -> CoastControl:
     """Fit an image's scan model to control points found on the coastline, from a rough ``start``.
 
     Args:
@@ -329,7 +339,8 @@ def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
         land: the land test (e.g. ``Coastline.contains`` of a box covering the image).
         search: ± pixels of the first level's whole-image search (cover the start's error: 20 km is ~17 pixels
             of a 1.2 km image). levels: the coarse-to-fine levels. minimum_points: fewer matches than this at a
-            level is an error. alpha: the w-test's significance.
+            level is an error. alpha: the w-test's significance. match_sigma_scale: factor on each match's σ from
+            its peak (default: the calibrated :data:`MATCH_SIGMA_SCALE`).
 
     Raises:
         SeaiceError: the image is not ``(start.n_scans, start.n_pixels)``; no coast is predicted in the image;
@@ -352,7 +363,8 @@ def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
     rejected, matched, fits = [], [], []
     for k, level in enumerate(levels):
         prediction = predicted_land(model, land)
-        matches = match_coast(image, prediction, level, shift if k == 0 else (0.0, 0.0))
+        matches = match_coast(image, prediction, level, shift if k == 0 else (0.0, 0.0),
+                              sigma_scale=match_sigma_scale)
         if matches.pixel.size < minimum_points:
             raise SeaiceError(f"automatic control: only {matches.pixel.size} coastline matches at level {k + 1} "
                               f"(at least {minimum_points} needed): too little coast in the image, or the start is "
