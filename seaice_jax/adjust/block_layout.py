@@ -132,7 +132,8 @@ def block_unknowns(coverages, options):
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
     offset = options.resolved_offset_prior()
     offset_sigma = offset if offset is not None else np.inf
-    shape_sigma = options.shape_prior if options.shape_prior is not None else np.inf
+    shape = options.resolved_shape_prior()
+    shape_sigma = shape if shape is not None else np.inf
     schuler_sigma = options.schuler_prior if options.schuler_prior is not None else shape_sigma
     shape = {"constant": [], "linear": [shape_sigma], "schuler": [shape_sigma, schuler_sigma, schuler_sigma]}.get(
         model, [])  # prior σ of the coefficients after the offset (the spline's values all take the offset's)

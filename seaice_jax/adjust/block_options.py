@@ -14,10 +14,17 @@ DENSE_LIMIT = engine.DENSE_LIMIT
 """Unknowns up to which ``solver="auto"`` uses the dense backend."""
 
 
-SCOPE_OFFSET_PRIOR = {"flight": 600.0, "strip": 2000.0}
+SCOPE_OFFSET_PRIOR = {"flight": 600.0, "strip": 1500.0}
 """Default σ (m) of the navigation offsets per scope: a flight's curve starts from the INS alignment error and the
-drift before its first strip; a strip's own curve carries everything accumulated by then (drift, Schuler phase,
-the turns' perturbations)."""
+drift before its first strip; a strip's own curve carries everything accumulated by then (the drift since take-off
+and the turns' perturbations, its Schuler terms apart: 0.6-2.2 km per component from 1 to 4 h after take-off with
+the defaults' INS and 300 m per turn, 1.5 km RMS; 2 km, the default before issue 29, was loose)."""
+
+SCOPE_SHAPE_PRIOR = {"flight": 1500.0, "strip": 130.0}
+"""Default σ (m) of the navigation drift coefficient (rate × the curve's time span) per scope: an INS drifting
+0.75 km/h in an unknown direction (0.53 km/h per component) over a flight of about 3 h, or over one 15-min strip
+(the strip's own curve; the flight's 1.5 km there left the strips' drift 11 times looser than the INS: σ̂0 0.988 and
+the global test rejecting 15 % of strip-scope blocks, issue 29)."""
 
 
 @dataclass(frozen=True)
@@ -41,7 +48,7 @@ class BlockOptions:
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior; ``"scope"``: by the
             navigation scope, :data:`SCOPE_OFFSET_PRIOR`).
         shape_prior: σ (m) of the other navigation coefficients: rate × strip (or flight) duration, Schuler
-            amplitudes (``None``: no prior).
+            amplitudes (``None``: no prior; ``"scope"``: by the navigation scope, :data:`SCOPE_SHAPE_PRIOR`).
         schuler_prior: σ (m) of the Schuler sine and cosine amplitudes if they differ from ``shape_prior`` (the
             INS drift over a short flight is far smaller than its Schuler oscillation).
         take_off_time: s on the strips' clock when the flights took off (flight scope; ``None``: unknown). The
@@ -67,13 +74,13 @@ class BlockOptions:
         robust: ``None``, ``"huber"`` or ``"danish"``: iteratively reweighted (the w-tests of the final weights).
 
     The default σ describe an AIDJEX-era inertial platform and film (sources 000, 002): 0.04 mm of film reading
-    along track and in slant range, time marks placed to 0.025 mm along the film (0.05 s at 0.5 mm/s: along
-    track 0.044-0.047 mm in all, 0.045 mm RMS between the marks); an offset of 600 m for a flight's curve
-    (alignment and the drift before its first strip) or 2 km for a strip's own curve (all the error accumulated by
-    then), a drift of 1.5 km over a flight and a Schuler oscillation of 1.3 km amplitude; 300 m per turn (a random
-    walk over the strips) and 25 m of low-frequency record noise left over a strip by the 180-s filter; each
-    strip's sweep delay known to 0.4 mm and its range scale to 0.5 %. On blunder-free simulated AIDJEX blocks
-    they give σ̂0 ≈ 1, the global and w-tests their false-alarm rates and predicted σ that match the errors
+    along track and in slant range, time marks placed to 0.025 mm along the film (0.05 s at 0.5 mm/s: along track
+    0.044-0.047 mm in all, 0.045 mm RMS between the marks); an offset of 600 m for a flight's curve (alignment and
+    the drift before its first strip) or 1.5 km for a strip's own curve (all the error accumulated by then), a drift
+    of 1.5 km over a flight (130 m over a strip) and a Schuler oscillation of 1.3 km amplitude; 300 m per turn (a
+    random walk over the strips) and 25 m of low-frequency record noise left over a strip by the 180-s filter; each
+    strip's sweep delay known to 0.4 mm and its range scale to 0.5 %. On blunder-free simulated AIDJEX blocks they
+    give σ̂0 ≈ 1, the global and w-tests their false-alarm rates and predicted σ that match the errors
     (``experiments/block_statistics.py``); other platforms need their own.
     """
 
@@ -86,7 +93,7 @@ class BlockOptions:
     time_mark_sigma: float | None = 0.025
     altimeter_sigma: float = 5.0
     offset_prior: float | str | None = "scope"
-    shape_prior: float | None = 1500.0
+    shape_prior: float | str | None = "scope"
     schuler_prior: float | None = 1300.0
     take_off_time: float | None = None
     turn_prior: float | None = 300.0
@@ -107,9 +114,18 @@ class BlockOptions:
             return SCOPE_OFFSET_PRIOR[self.navigation_scope]
         return None if self.offset_prior is None else float(self.offset_prior)
 
+    def resolved_shape_prior(self) -> float | None:
+        """σ (m) of the drift coefficient (and of the Schuler terms without ``schuler_prior``): ``shape_prior``, or
+        by the scope when it is ``"scope"``."""
+        if self.shape_prior == "scope":
+            return SCOPE_SHAPE_PRIOR[self.navigation_scope]
+        return None if self.shape_prior is None else float(self.shape_prior)
+
     def __post_init__(self):
-        if isinstance(self.offset_prior, str) and self.offset_prior != "scope":
-            raise SeaiceError(f"offset_prior must be a σ in metres, None or 'scope', got {self.offset_prior!r}")
+        for name in ("offset_prior", "shape_prior"):
+            value = getattr(self, name)
+            if isinstance(value, str) and value != "scope":
+                raise SeaiceError(f"{name} must be a σ in metres, None or 'scope', got {value!r}")
         if self.navigation_model not in ERROR_MODELS:
             raise SeaiceError(f"navigation_model must be one of {', '.join(ERROR_MODELS)}, got "
                               f"{self.navigation_model!r}")
