@@ -15,8 +15,9 @@ The straight lines (bytes; measured in December 2026, ``benchmarks/RESULTS.md``,
   one image at a time; 1024²: 2.1 GiB, 2048²: 6.4 GiB);
 * film: 0.3 GiB + 6 per film pixel of every frame + 70 per pixel of one frame (its decorations; 12 frames of
   2400²: 0.95 GiB);
-* track: 1.1 GiB + 32 kB per lattice point (its correlation surfaces, its vector and ellipse on the figure) + 20 per
-  grid cell of every image (the stack);
+* track: 1.1 GiB + 15 kB per lattice point (its match, its vector, triangles and ellipse in the files and the
+  figure: the case of every vector good) + 20 per grid cell of every image (the stack) (97 000 points, 82 % of
+  them good: 2.3 GiB; 27 % good: 1.5 GiB);
 * block (simultaneous): 0.8 GiB + 800 × (global unknowns)² (the reduced system of the strips' unknowns, its
   factors and their temporaries; a spline navigation model with knots every 3 s on 4 strips of 900 s, 2 432
   unknowns: 5.1 GiB).
@@ -103,7 +104,7 @@ def film_peak(frames: int, frame_pixels: int) -> float:
 
 def track_peak(points: int, cells: int, images: int) -> float:
     """Bytes: ``seaice track`` of ``images`` images of ``cells`` grid cells on a lattice of ``points``."""
-    return 1.1 * GIB + 32_000.0 * points + 20.0 * cells * images
+    return 1.1 * GIB + 15_000.0 * points + 20.0 * cells * images
 
 
 def block_peak(unknowns: int) -> float:

@@ -293,6 +293,48 @@ def _track_point(images, row, column, guess_row, guess_column, options: Tracking
     return status, d_row, d_column, peak, sharpness, sigma_row, sigma_column
 
 
+_DENSE_NEIGHBOURS = 2048
+"""Good vectors up to which the median test's neighbours come from one distance matrix (40 bytes per pair: 160 MB
+here); beyond, from blocks of rows (:func:`_nearest`), so that memory grows with the vectors, not their square
+(``track --spacing 1`` on a 337² grid, 97 000 vectors, was killed at 20 GB)."""
+
+
+def _nearest(position, k: int, block: int = 256):
+    """``(n, k)`` indices of each point's ``k`` nearest other points (``position`` ``(n, 2)``, ``n > k``; ties in any
+    order). Exact, in memory and time about linear in ``n``: the points sorted by their first coordinate, a block of
+    ``block`` points compares itself with the points within ``r`` of its span in that coordinate, and keeps the
+    answers whose ``k``-th distance is at most ``r`` (nothing outside that band is nearer); ``r`` doubles for the
+    rest."""
+    n = position.shape[0]
+    order = np.argsort(position[:, 0], kind="stable")
+    ordered = position[order]
+    first = ordered[:, 0]
+    extent = np.ptp(position, axis=0)
+    # the radius of a disc holding k points at the mean density, and a half more
+    start_radius = 1.5 * np.sqrt(max(extent[0] * extent[1], np.max(extent) ** 2 / n, 1e-300) / n * k / np.pi)
+    nearest = np.empty((n, k), int)
+    for begin in range(0, n, block):
+        pending = np.arange(begin, min(begin + block, n))
+        radius = start_radius
+        while pending.size:
+            low = np.searchsorted(first, first[pending].min() - radius, "left")
+            high = np.searchsorted(first, first[pending].max() + radius, "right")
+            if high - low <= k and (low > 0 or high < n):
+                radius *= 2.0
+                continue
+            across = ordered[pending, 0, None] - first[None, low:high]
+            along = ordered[pending, 1, None] - ordered[None, low:high, 1]
+            distance = across * across + along * along
+            distance[np.arange(pending.size), pending - low] = np.inf  # not itself
+            chosen = np.argpartition(distance, k - 1, axis=1)[:, :k]
+            kth = np.take_along_axis(distance, chosen, 1).max(axis=1)
+            done = (kth <= radius * radius) | ((low == 0) & (high == n))
+            nearest[order[pending[done]]] = order[low + chosen[done]]
+            pending = pending[~done]
+            radius *= 2.0
+    return nearest
+
+
 def median_test(displacements: Displacements, options: TrackingOptions = TrackingOptions()) -> Displacements:
     """Flag as :data:`OUTLIER` the good vectors that fail the normalised median test against their
     ``options.neighbours`` nearest good neighbours: |d − median| / (median |d_i − median| + 0.1 px) > threshold."""
@@ -301,9 +343,12 @@ def median_test(displacements: Displacements, options: TrackingOptions = Trackin
         return displacements
     position = np.stack([displacements.row[good], displacements.column[good]], 1)
     vector = np.stack([displacements.d_row[good], displacements.d_column[good]], 1)
-    distance = np.linalg.norm(position[:, None] - position[None], axis=-1)
-    np.fill_diagonal(distance, np.inf)
-    nearest = np.argsort(distance, axis=1)[:, :options.neighbours]
+    if good.size <= _DENSE_NEIGHBOURS:
+        distance = np.linalg.norm(position[:, None] - position[None], axis=-1)
+        np.fill_diagonal(distance, np.inf)
+        nearest = np.argsort(distance, axis=1)[:, :options.neighbours]
+    else:
+        nearest = _nearest(position, options.neighbours)
     neighbours = vector[nearest]  # (g, k, 2)
     median = np.median(neighbours, axis=1)
     spread = np.median(np.abs(neighbours - median[:, None]), axis=1)
