@@ -61,7 +61,9 @@ class BlockOptions:
             turn_prior·√k and strips j, k the covariance turn_prior²·min(j, k) (``None``: no prior).
         deviation_prior: σ (m) of each strip's linear deviation from the flight's curve (its change over the
             strip; flight scope only): the low-frequency part of the record noise that the filter lets through
-            (``None``: no prior).
+            (``None``: no prior). The default 3 m: the 180-s filter's trajectory through records with 30 m and
+            0.03 m/s of white noise changes by 3.0 m RMS per component over a 15-min strip (25 m before issue 29:
+            its w-tested residuals had 0.37 of their expected square sum).
         sweep_delay_prior: σ of Δc, mm. range_scale_prior: σ of Δf relative to f0.
         static_points: land: one position per point for all coverages (no drift).
         solver: ``"auto"``, ``"dense"`` or ``"schur"``.
@@ -78,7 +80,7 @@ class BlockOptions:
     0.044-0.047 mm in all, 0.045 mm RMS between the marks); an offset of 600 m for a flight's curve (alignment and
     the drift before its first strip) or 1.5 km for a strip's own curve (all the error accumulated by then), a drift
     of 1.5 km over a flight (130 m over a strip) and a Schuler oscillation of 1.3 km amplitude; 300 m per turn (a
-    random walk over the strips) and 25 m of low-frequency record noise left over a strip by the 180-s filter; each
+    random walk over the strips) and 3 m of low-frequency record noise left over a strip by the 180-s filter; each
     strip's sweep delay known to 0.4 mm and its range scale to 0.5 %. On blunder-free simulated AIDJEX blocks they
     give σ̂0 ≈ 1, the global and w-tests their false-alarm rates and predicted σ that match the errors
     (``experiments/block_statistics.py``); other platforms need their own.
@@ -97,7 +99,7 @@ class BlockOptions:
     schuler_prior: float | None = 1300.0
     take_off_time: float | None = None
     turn_prior: float | None = 300.0
-    deviation_prior: float | None = 25.0
+    deviation_prior: float | None = 3.0
     sweep_delay_prior: float | None = 0.4
     range_scale_prior: float | None = 0.005
     static_points: bool = False
