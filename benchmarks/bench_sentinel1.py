@@ -35,6 +35,9 @@ import seaice_jax  # noqa: E402,F401
 from seaice_jax._shapes import pad  # noqa: E402
 from seaice_jax.geometry.earth import geodetic_to_ecef, north_east  # noqa: E402
 from seaice_jax.geometry.zero_doppler import (  # noqa: E402
+    INVERSE_NEWTON_STEPS,
+    INVERSE_START_TIMES,
+    NEWTON_STEPS,
     SPEED_OF_LIGHT,
     ellipsoid_ground_point,
     ellipsoid_imaging_time_and_range,
@@ -283,10 +286,11 @@ def main():
         "the process's, best of the same calls (JAX may run on both cores, sarsen's NumPy on one); first call = "
         "trace + compile + run for seaice_jax (one compilation per batch size), the "
         "first call with those points for sarsen (nothing to compile). seaice_jax: the public calls "
-        "`ellipsoid_ground_point(orbit, t, r, h)` (Newton on the zero-Doppler circle, 6 steps, then the check on "
-        "the host that raises on a range that misses the Earth; with `on_failure='nan'` no check: NaN there) and "
-        "`ellipsoid_imaging_time_and_range(orbit, lat, lon, h, t0, t1)` (geodetic -> ECEF included; a 65-time "
-        "coarse search along the orbit, then 6 Newton steps), "
+        f"`ellipsoid_ground_point(orbit, t, r, h)` (Newton on the zero-Doppler circle, {NEWTON_STEPS} steps, then "
+        "the check on the host that raises on a range that misses the Earth; with `on_failure='nan'` no check: "
+        "NaN there) and "
+        "`ellipsoid_imaging_time_and_range(orbit, lat, lon, h, t0, t1)` (geodetic -> ECEF included; a "
+        f"{INVERSE_START_TIMES}-time coarse search along the orbit, then {INVERSE_NEWTON_STEPS} Newton steps), "
         "orbit by 8-vector Lagrange interpolation of the positions and, separately, of the velocities. sarsen: "
         "`apps.simulate_acquisition` (its `geocoding.backward_geocode`, Newton from the orbit's mid time, stopping "
         "when the zero-Doppler residual is below 1 m x 7500 m/s or the step below 1 µs, then the slant range), "
