@@ -51,7 +51,8 @@ def _project(tmp_path, head=HEAD, image=IMAGE, control=CONTROL, pixels=None):
     ({"head": HEAD.replace("shape = [10, 10]", "shape = [30000, 30000]")},
      r"\[grid\] shape \[30000, 30000\]: remapping one image on it needs about 243.9 GiB of memory at its peak, more "
      r"than the 4 GiB budget \(\$SEAICE_MEMORY_GIB sets another\)"),
-    ({"head": HEAD.replace("shape = [10, 10]", "shape = [1000000, 1000000]")}, r"remapping one image on it needs about 270084.3 GiB"),
+    ({"head": HEAD.replace("shape = [10, 10]", "shape = [1000000, 1000000]")},
+     r"remapping one image on it needs about 270084.3 GiB"),
     ({"head": HEAD.replace("shape = [10, 10]", "shape = [3000, 3000]"), "image": IMAGE * 6},
      r"6 images on a 3000 x 3000 grid needs about 5.3 GiB of memory at its peak, more than the 4 GiB budget"),
     ({"head": HEAD.replace("shape = [10, 10]", "shape = [10.5, 10]")}, r"\[grid\] shape must be two positive integers"),
