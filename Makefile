@@ -48,6 +48,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_sequence_block.py
 	$(PY) benchmarks/bench_sentinel1.py
 	$(PY) benchmarks/bench_cli.py
+	$(PY) benchmarks/bench_memory.py
 
 clean:
 	rm -rf seaice-demo .pytest_cache
