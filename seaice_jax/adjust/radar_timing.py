@@ -24,7 +24,7 @@ from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solv
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import geodetic_to_ecef
 from seaice_jax.geometry.range_doppler import refined_imaging_time
-from seaice_jax.geometry.state_vectors import ORBIT_BUCKET, StateVectorOrbit
+from seaice_jax.geometry.state_vectors import StateVectorOrbit
 
 NEWTON_STEPS = 4
 """Newton steps of the zero-Doppler time from the measured time (micro- to milliseconds away: converged in two)."""
@@ -85,7 +85,7 @@ class TimingOptions:
 
 
 def _stacked(orbits):
-    padded = [orbit.padded(max(ORBIT_BUCKET, orbit.times.size)) for orbit in orbits]
+    padded = [orbit.bucketed() for orbit in orbits]
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *padded)
 
 

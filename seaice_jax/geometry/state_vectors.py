@@ -19,8 +19,8 @@ from seaice_jax.geometry.trajectory import Trajectory
 
 DEFAULT_ORDER = 8
 """Number of state vectors in each Lagrange window (a degree-7 polynomial). On the Sentinel-1 annotations of the
-tests the ESA geolocation grid points then satisfy the range equation to micrometres and the zero-Doppler equation
-to 1.4 cm or better."""
+tests the ESA geolocation grid points then satisfy the range equation to 0.02 mm and the zero-Doppler equation to
+1.4 cm or better (measured on all their grid points)."""
 
 ORBIT_BUCKET = 32
 """State vectors an orbit is padded to (:meth:`StateVectorOrbit.padded`) where many products share one compiled
@@ -70,6 +70,10 @@ class StateVectorOrbit(Trajectory):
     def time_span(self) -> tuple[float, float]:
         """First and last state-vector time, s."""
         return float(self.times[0]), float(self.times[int(self.count) - 1])
+
+    def bucketed(self) -> "StateVectorOrbit":
+        """This orbit :meth:`padded` to :data:`ORBIT_BUCKET` vectors, or left as it is if it has more."""
+        return self.padded(max(ORBIT_BUCKET, self.times.shape[0]))
 
     def padded(self, size: int) -> "StateVectorOrbit":
         """This orbit with rows appended up to ``size`` vectors (times far beyond the last, positions and velocities

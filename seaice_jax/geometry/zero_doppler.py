@@ -36,8 +36,9 @@ most, the microsecond of its printed times), the third is margin."""
 INVERSE_START_TIMES = 9
 """Times along the orbit's span (Sentinel-1: ~150 s, so ~19 s apart) where the inverse picks its Newton start."""
 INVERSE_NEWTON_STEPS = 5
-"""Newton steps of the inverse's zero-Doppler time from that start: the Doppler residual is nearly linear in time
-(its slope −|ṡ|² + (p − s)·s̈ varies by ~12 % over the span), so three reach the microsecond; five keep a margin."""
+"""Newton steps of the inverse's zero-Doppler time from that start. On the nine Sentinel-1 annotations of the tests,
+3, 5, 9, 17 or 65 start times with five or six steps give the same largest difference from ESA's grid times
+(2.03 µs)."""
 
 
 def ellipsoid_ground_point(

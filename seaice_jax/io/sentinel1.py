@@ -57,10 +57,20 @@ class GeolocationGrid:
         """m: c τ / 2."""
         return self.slant_range_time * SPEED_OF_LIGHT / 2.0
 
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(lines, pixels) of the grid when it is a full rectangle (as ESA writes it)."""
-        return len(np.unique(self.line)), len(np.unique(self.pixel))
+    def table(self, values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``values`` ``(k,)`` given per grid point as a table: ``(lines (m,), pixels (n,), table (m, n))``, rows by
+        increasing line, columns by increasing pixel.
+
+        Raises:
+            SeaiceError: the grid is not a full rectangle of lines x pixels (ESA writes it as one).
+        """
+        lines, pixels = np.unique(self.line), np.unique(self.pixel)
+        if lines.size * pixels.size != self.line.size:
+            raise SeaiceError(f"the geolocation grid is not a full rectangle of lines x pixels ({self.line.size} "
+                              f"points on {lines.size} lines and {pixels.size} pixels)")
+        table = np.full((lines.size, pixels.size), np.nan)
+        table[np.searchsorted(lines, self.line), np.searchsorted(pixels, self.pixel)] = values
+        return lines, pixels, table
 
 
 @dataclass(frozen=True)
@@ -124,11 +134,6 @@ class Sentinel1Annotation:
     bistatic_reference_source: str = ""
 
     @property
-    def look_side(self) -> str:
-        """Sentinel-1 looks right of its flight direction."""
-        return "right"
-
-    @property
     def mid_swath_range_time(self) -> float:
         """Two-way slant range time of the swath's middle sample, s (SLC: τ₀ + N / (2 f_s))."""
         return self.first_range_time + self.samples / (2.0 * self.range_sampling_rate)
@@ -138,10 +143,6 @@ class Sentinel1Annotation:
         from ``epoch`` (default :attr:`epoch`; give one epoch to the orbits of several images adjusted together)."""
         shift = 0.0 if epoch is None else float(_seconds(self.epoch, np.asarray(epoch, "datetime64[ns]")))
         return StateVectorOrbit(self.orbit_times + shift, self.orbit_positions, self.orbit_velocities)
-
-    def time_of(self, moment) -> np.ndarray:
-        """Seconds from :attr:`epoch` of ``numpy.datetime64`` values or ISO 8601 strings."""
-        return _seconds(np.asarray(moment, "datetime64[ns]"), self.epoch)
 
     def line_time(self, line) -> np.ndarray:
         """Azimuth time (s) of image lines (fractional lines interpolate linearly), before the bistatic shift."""

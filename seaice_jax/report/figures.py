@@ -519,13 +519,10 @@ def sar_geolocation_figure(check) -> Figure:
     x, y = (np.asarray(v) for v in projection.forward(np.radians(grid.latitude), np.radians(grid.longitude)))
     difference = check.horizontal * 1000.0
     fig, (ax_map, ax_diff) = _figure(11.0, 5.0, 1, 2, gridspec_kw={"width_ratios": [1.25, 1.0]})
-    lines, pixels = np.unique(grid.line), np.unique(grid.pixel)
-    if lines.size * pixels.size == grid.line.size:
-        order = np.lexsort((grid.pixel, grid.line))
-        gx, gy = x[order].reshape(lines.size, pixels.size), y[order].reshape(lines.size, pixels.size)
-        edge_x = np.concatenate([gx[0], gx[:, -1], gx[-1, ::-1], gx[::-1, 0]])
-        edge_y = np.concatenate([gy[0], gy[:, -1], gy[-1, ::-1], gy[::-1, 0]])
-        ax_map.plot(edge_x, edge_y, color="0.3", lw=0.8, label="image footprint")
+    gx, gy = grid.table(x)[2], grid.table(y)[2]
+    edge_x = np.concatenate([gx[0], gx[:, -1], gx[-1, ::-1], gx[::-1, 0]])
+    edge_y = np.concatenate([gy[0], gy[:, -1], gy[-1, ::-1], gy[::-1, 0]])
+    ax_map.plot(edge_x, edge_y, color="0.3", lw=0.8, label="image footprint")
     dots = ax_map.scatter(x, y, c=difference, s=9, cmap="viridis", zorder=3, label="geolocation grid points")
     margin = 0.15 * max(np.ptp(x), np.ptp(y))
     ax_map.set_xlim(x.min() - margin, x.max() + margin)

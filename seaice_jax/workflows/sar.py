@@ -21,7 +21,7 @@ import numpy as np
 from seaice_jax._shapes import padded_to_bucket
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import geodetic_to_ecef, north_east
-from seaice_jax.geometry.state_vectors import ORBIT_BUCKET, StateVectorOrbit
+from seaice_jax.geometry.state_vectors import StateVectorOrbit
 from seaice_jax.geometry.zero_doppler import ellipsoid_ground_point, ellipsoid_imaging_time_and_range
 from seaice_jax.io.sentinel1 import Sentinel1Annotation, read_annotation
 from seaice_jax.outputs import output_folder
@@ -80,7 +80,7 @@ def check_geolocation(annotation: Sentinel1Annotation) -> GeolocationCheck:
     orbit to :data:`~seaice_jax.geometry.state_vectors.ORBIT_BUCKET` vectors: one compilation for every product."""
     grid = annotation.grid
     orbit = annotation.orbit()
-    padded = orbit.padded(max(ORBIT_BUCKET, orbit.times.size))
+    padded = orbit.bucketed()
     n = grid.line.size
 
     def cut(values):
@@ -190,7 +190,7 @@ def source_maps(annotation: Sentinel1Annotation, grid: "MapGrid", height) -> tup
     latitude, longitude = (np.asarray(v).reshape(-1) for v in grid.latitude_longitude())
     heights = np.broadcast_to(np.asarray(height, float), grid.shape).reshape(-1)
     orbit = annotation.orbit()
-    padded = orbit.padded(max(ORBIT_BUCKET, orbit.times.size))
+    padded = orbit.bucketed()
     time, slant = np.empty_like(latitude), np.empty_like(latitude)
     for start in range(0, latitude.size, REMAP_CHUNK):
         part = slice(start, start + REMAP_CHUNK)
@@ -232,7 +232,7 @@ def orbit_position_sigma(annotation: Sentinel1Annotation, orbit_sigma: float, he
     grid = annotation.grid
     heights = grid.height if height is None else np.broadcast_to(np.asarray(height, float), grid.height.shape)
     orbit = annotation.orbit()
-    padded = orbit.padded(max(ORBIT_BUCKET, orbit.times.size))
+    padded = orbit.bucketed()
     reference = np.asarray(geodetic_to_ecef(np.radians(grid.latitude), np.radians(grid.longitude), heights))
     north_axis, east_axis = (np.asarray(v) for v in north_east(reference))
 
@@ -254,13 +254,7 @@ def _grid_field(annotation: Sentinel1Annotation, values: np.ndarray, line, pixel
     nearest edge value beyond the grid's span; NaN where a coordinate is)."""
     from seaice_jax.imagery.remap import resample
 
-    grid = annotation.grid
-    if grid.line.size != np.unique(grid.line).size * np.unique(grid.pixel).size:
-        raise SeaiceError(f"{annotation.path.name}: the geolocation grid is not a full rectangle of lines x pixels "
-                          f"({grid.line.size} points)")
-    lines, pixels = np.unique(grid.line), np.unique(grid.pixel)
-    table = np.full((lines.size, pixels.size), np.nan)
-    table[np.searchsorted(lines, grid.line), np.searchsorted(pixels, grid.pixel)] = values
+    lines, pixels, table = annotation.grid.table(values)
     row = np.interp(line, lines, np.arange(lines.size))
     column = np.interp(pixel, pixels, np.arange(pixels.size))
     field, _ = resample(table, row, column, np.isfinite(row) & np.isfinite(column))
