@@ -506,8 +506,10 @@ def build_parser() -> argparse.ArgumentParser:
         "images) to control points of known latitude and longitude, and print a report in the layout of the 1985 "
         "line printer (Figure 3-3) with the parameters' covariance and w-tests (Baarda's data snooping: a "
         "standardised residual beyond its critical value flags a point).")
-    rectify.add_argument("measurements", nargs="?", help="CSV: id,name,pixel,scan,lat,lon (degrees) [,sigma_km], or "
-                                                         "id,pixel,scan with --stations (optional with --auto-control)")
+    rectify.add_argument("measurements", nargs="?",
+                         help="CSV: id,pixel,scan,latitude_deg,longitude_deg[,sigma_m][,name] (degrees, metres; the "
+                              "control files seaice simulate writes; lat,lon and sigma_km read too), or id,pixel,scan "
+                              "with --stations (optional with --auto-control)")
     rectify.add_argument("--stations", help="AGRID station catalogue (the 1985 fixed-column file of numbered "
                                             "stations with latitude and longitude in degrees and minutes) to take "
                                             "the positions from")
@@ -523,7 +525,7 @@ def build_parser() -> argparse.ArgumentParser:
                          help="the satellite's direction along its orbit; auto: fit both, keep the better")
     rectify.add_argument("--method", choices=["gauss-newton", "appendix_c"], default="gauss-newton",
                          help="appendix_c: the 1985 search of the report's Appendix C (no covariance)")
-    rectify.add_argument("--sigma", type=_POSITIVE, default=1.0, help="km, ground σ of points without sigma_km")
+    rectify.add_argument("--sigma", type=_POSITIVE, default=1.0, help="km, ground σ of points without sigma_m")
     rectify.add_argument("--pixels", type=_in_range(int, 2, 100_000), default=512, help="pixels per scan line")
     rectify.add_argument("--scans", type=_in_range(int, 2, 100_000), default=512, help="scan lines")
     rectify.add_argument("--check", help="CSV of check points: known positions, not used in the fit")

@@ -41,8 +41,8 @@ def test_bad_measurements_name_file_and_line(tmp_path, edit, message):
 def test_points_outside_the_image_are_refused(tmp_path):
     path = _bad(tmp_path, VALID.replace(",164,123,", ",600,123,"))
     measurements = read_measurements(path)
-    with pytest.raises(SeaiceError, match=r"points.csv: point 3030 at pixel 600.0, scan 123.0 is outside the image "
-                                          r"of 512 pixels x 512 scan lines"):
+    with pytest.raises(SeaiceError, match=r"points.csv, line 2: point 3030 at pixel 600.0, scan 123.0 is outside the "
+                                          r"image of 512 pixels x 512 scan lines"):
         check_in_image(measurements, 512, 512, path)
     check_in_image(measurements, 600, 512, path)  # the same point inside a wider image
 

@@ -59,7 +59,7 @@ def test_measurements_with_positions_and_joined_to_a_catalogue(tmp_path):
     direct = tmp_path / "direct.csv"
     direct.write_text("id,name,pixel,scan,lat,lon,sigma_km\nA,Alpha,10,20,75.5,-80.25,0.5\nB,Beta,30,40,74,-79,\n")
     ms = read_measurements(direct)
-    assert [(m.id, m.pixel, m.scan, m.sigma_km) for m in ms] == [("A", 10, 20, 0.5), ("B", 30, 40, None)]
+    assert [(m.id, m.pixel, m.scan, m.sigma_m) for m in ms] == [("A", 10, 20, 500.0), ("B", 30, 40, None)]
     catalogue = tmp_path / "AGRID.STN"
     catalogue.write_text(AGRID)
     joined = tmp_path / "joined.csv"

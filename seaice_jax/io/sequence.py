@@ -43,7 +43,8 @@ from seaice_jax.geometry.crs import projection_from_definition
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.projections import Equirectangular, MapGrid, nsidc_polar_stereographic
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel, satellite_orbit
-from seaice_jax.io.tables import check_input_file, project_file, read_table
+from seaice_jax.io.stations import check_in_image, control_points, read_measurements
+from seaice_jax.io.tables import check_input_file, project_file
 from seaice_jax.memory import DEFAULT_BUDGET, check_memory, remap_peak
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.timefmt import format_time, parse_time, time_after
@@ -141,25 +142,17 @@ def read_image_file(path: Path) -> np.ndarray:
 
 
 def _read_control(path: Path, shape) -> ControlPoints:
-    columns = ("pixel", "scan", "latitude", "longitude", "sigma_m")
-    rows = read_table(path, ("id", *columns), columns)
-    if not rows:
+    """An image's control points (:func:`~seaice_jax.io.stations.read_measurements`: the package's one
+    control-point dialect), each with its σ, inside the image of ``shape`` (scan lines, pixels)."""
+    points = read_measurements(path)
+    if not points:
         raise SeaiceError(f"{path}: no control points")
-    lines: dict[str, int] = {}
-    for line, row in rows:
-        if abs(row["latitude"]) > 90 or not -180 <= row["longitude"] < 360 or row["sigma_m"] <= 0:
-            raise SeaiceError(f"{path}, line {line}: point {row['id']}: latitude must be within [-90°, 90°], "
-                              f"longitude within [-180°, 360°) and sigma_m > 0, got {row['latitude']}, "
-                              f"{row['longitude']}, {row['sigma_m']}")
-        if not (0.5 <= row["pixel"] <= shape[1] + 0.5 and 0.5 <= row["scan"] <= shape[0] + 0.5):
-            raise SeaiceError(f"{path}, line {line}: point {row['id']} at pixel {row['pixel']}, scan {row['scan']} "
-                              f"is outside the image ({shape[1]} pixels x {shape[0]} scan lines, 1-based)")
-        if row["id"] in lines:
-            raise SeaiceError(f"{path}, line {line}: point {row['id']} already defined on line {lines[row['id']]}")
-        lines[row["id"]] = line
-    values = {c: np.array([row[c] for _, row in rows]) for c in columns}
-    return ControlPoints(values["pixel"], values["scan"], np.radians(values["latitude"]),
-                         np.radians(values["longitude"]), values["sigma_m"], [row["id"] for _, row in rows])
+    for point in points:
+        if point.sigma_m is None:
+            raise SeaiceError(f"{path}, line {point.line}: point {point.id} has no sigma_m (a sequence project's "
+                              "control points need their ground σ, metres)")
+    check_in_image(points, shape[1], shape[0], path, options=" (1-based)")
+    return control_points(points)
 
 
 def _given_model(entry: dict, label: str, orbit: Orbit, direction: str, shape) -> ScanModel:

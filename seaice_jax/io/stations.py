@@ -4,8 +4,10 @@
   name 11-40, latitude degree 41-45, minute 46-50, longitude degree 51-55, minute 56-60; numbers right-justified,
   the name left-justified. The sign of a coordinate is carried by its degree field ("-0" for a negative
   coordinate under one degree).
-* Measurements as CSV: ``id,name,pixel,scan,lat,lon`` (decimal degrees), or ``id,pixel,scan`` joined to a
-  catalogue; an optional ``sigma_km`` column gives each point's ground standard deviation.
+* Control-point measurements as CSV, one dialect for every reader and writer of the package (``seaice rectify``,
+  a sequence project's ``control`` files, the files ``seaice simulate lancaster`` writes):
+  ``id,pixel,scan,latitude_deg,longitude_deg,sigma_m`` (:data:`MEASUREMENT_COLUMNS`), see
+  :func:`read_measurements`.
 
 Every error names the file and line.
 """
@@ -35,7 +37,8 @@ class Station:
 
 @dataclass(frozen=True)
 class Measurement:
-    """A control point measured on an image: id, name, pixel, scan, known position (degrees), σ (km or None)."""
+    """A control point measured on an image: id, name, pixel, scan (1-based), known position (degrees), ground σ
+    (m, ``None``: not given) and the file's line it was read from (0: not read from a file)."""
 
     id: str
     name: str
@@ -43,7 +46,17 @@ class Measurement:
     scan: float
     latitude_deg: float
     longitude_deg: float
-    sigma_km: float | None = None
+    sigma_m: float | None = None
+    line: int = 0
+
+
+MEASUREMENT_COLUMNS = ("id", "pixel", "scan", "latitude_deg", "longitude_deg", "sigma_m")
+"""The control-point CSV dialect, in the order the package writes it (``name`` may follow): see
+:func:`read_measurements`."""
+
+_ALIASES = {"lat": "latitude", "lon": "longitude", "sigma_km": "sigma_m"}
+"""Older column names (after :func:`~seaice_jax.files.bare_column`) -> the dialect's: the 1985 example's
+``lat``/``lon`` and ``seaice rectify``'s former ``sigma_km``."""
 
 
 def _field(line: str, start: int, end: int) -> str:
@@ -111,12 +124,30 @@ def write_agrid(path: str | os.PathLike, stations) -> Path:
     return Path(path)
 
 
-def _number(row, column, where):
-    return finite_number((row.get(column) or "").strip(), column, where)
-
-
 def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None = None) -> list[Measurement]:
-    """Read control-point measurements from CSV (see the module docstring for the columns)."""
+    """Read control-point measurements from a CSV file in the package's one control-point dialect.
+
+    Columns (a header row; UTF-8, with or without a byte-order mark; any order; other columns are ignored):
+
+    * ``id``: the point's identifier (unique in the file);
+    * ``pixel``, ``scan``: where the point was measured on the image, 1-based pixel (along a scan line) and scan
+      line, fractional allowed;
+    * ``latitude_deg``, ``longitude_deg``: its known position, decimal degrees (latitude within ±90°, longitude
+      within [-180°, 360°)); left out (or blank on a row) when ``catalogue`` gives the station of that number;
+    * ``sigma_m`` (optional): the ground standard deviation of the known position, metres (blank: not given;
+      ``seaice rectify`` then uses ``--sigma``);
+    * ``name`` (optional): the station's name, for the reports.
+
+    This is what ``seaice simulate lancaster`` writes beside each image
+    (:func:`~seaice_jax.io.sequence.write_sequence`) and what a sequence project's ``control`` file is, so a
+    simulated image's control points go straight to ``seaice rectify``. Older files still read: ``lat``/``lon``
+    (as in ``examples/figure_3_3.csv``, the stations of the 1985 printout), ``latitude``/``longitude``,
+    ``lat_deg``/``lon_deg`` for the position, and ``sigma_km`` (kilometres) for the σ. The AGRID catalogue is a
+    different file (:func:`read_agrid`).
+
+    Raises:
+        SeaiceError: naming the file and line (and column) at fault, before anything is fitted or written.
+    """
     by_number = {str(s.number): s for s in catalogue or []}
     check_input_file(Path(path))
     try:
@@ -127,34 +158,53 @@ def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None =
         raise SeaiceError(f"{path}: not a readable CSV table ({error})") from None
 
 
+def _dialect_columns(path, fieldnames) -> dict:
+    """``{the dialect's bare column name: the file's column}``, refusing a column given under two names."""
+    columns: dict = {}
+    for field in fieldnames or []:
+        if field is None:
+            continue
+        bare = bare_column(field)
+        name = _ALIASES.get(bare, bare)
+        if name in columns and columns[name] != field:
+            raise SeaiceError(f"{path}, line 1: columns {columns[name]!r} and {field!r} both give {name}; keep one")
+        columns[name] = field
+    return columns
+
+
 def _read_measurements(path, by_number: dict, catalogue) -> list[Measurement]:
     with open(path, newline="", encoding="utf-8-sig") as stream:
         reader = csv.DictReader(stream)
-        columns = {bare_column(c) for c in reader.fieldnames or []}
-        required = {"id", "pixel", "scan"} | (set() if catalogue else {"lat", "lon"})
-        missing = sorted(required - columns)
+        columns = _dialect_columns(path, reader.fieldnames)
+        required = ["id", "pixel", "scan"] + ([] if catalogue else ["latitude", "longitude"])
+        missing = [f"{c}_deg" if c in ("latitude", "longitude") else c for c in required if c not in columns]
         if missing:
             raise SeaiceError(f"{path}, line 1: missing column(s) {', '.join(missing)} "
-                              f"(have {', '.join(sorted(columns)) or 'none'})")
+                              f"(have {', '.join(sorted(columns.values())) or 'none'})")
         measurements, seen = [], {}
         for line_number, raw in enumerate(reader, start=2):
-            row = {bare_column(k): v for k, v in raw.items() if k is not None}
             where = f"{path}, line {line_number}"
-            point = (row.get("id") or "").strip()
+            if any((v or "").strip() for v in raw.get(None) or ()):
+                raise SeaiceError(f"{where}: more values than the header's {len(reader.fieldnames or [])} columns")
+            row = {name: raw.get(field) or "" for name, field in columns.items()}
+            point = row["id"].strip()
             if not point:
                 raise SeaiceError(f"{where}: empty id")
             if point in seen:
                 raise SeaiceError(f"{where}: point {point} already measured on line {seen[point]}")
             seen[point] = line_number
-            measurements.append(_measurement(row, point, where, by_number))
+            measurements.append(_measurement(row, columns, point, where, by_number, line_number))
     return measurements
 
 
-def _measurement(row: dict, point: str, where: str, by_number: dict) -> Measurement:
-    """One measurement row: its own lat/lon (and name) or the catalogue station's; latitude within ±90°; σ > 0."""
-    if (row.get("lat") or "").strip() != "":
-        latitude, longitude = _number(row, "lat", where), _number(row, "lon", where)
-        name = (row.get("name") or "").strip()
+def _measurement(row: dict, columns: dict, point: str, where: str, by_number: dict, line: int) -> Measurement:
+    """One measurement row: its own position (and name) or the catalogue station's; latitude within ±90°; σ > 0."""
+    def number(name):
+        return finite_number(row[name].strip(), bare_column(columns[name]), where)
+
+    if row.get("latitude", "").strip() != "":
+        latitude, longitude = number("latitude"), number("longitude")
+        name = row.get("name", "").strip()
     elif point in by_number:
         station = by_number[point]
         latitude, longitude, name = station.latitude_deg, station.longitude_deg, station.name
@@ -164,15 +214,16 @@ def _measurement(row: dict, point: str, where: str, by_number: dict) -> Measurem
         raise SeaiceError(f"{where}: point {point} latitude {latitude}° is outside [-90°, 90°]")
     if not -180.0 <= longitude < 360.0:
         raise SeaiceError(f"{where}: point {point} longitude {longitude}° is outside [-180°, 360°)")
-    sigma = _number(row, "sigma_km", where) if (row.get("sigma_km") or "").strip() else None
-    if sigma is not None and sigma <= 0:
-        raise SeaiceError(f"{where}: point {point} sigma_km must be > 0")
-    return Measurement(point, name, _number(row, "pixel", where), _number(row, "scan", where), latitude, longitude,
-                       sigma)
+    sigma = None
+    if row.get("sigma_m", "").strip():
+        sigma = number("sigma_m") * (1000.0 if bare_column(columns["sigma_m"]) == "sigma_km" else 1.0)
+        if sigma <= 0:
+            raise SeaiceError(f"{where}: point {point} {columns['sigma_m']} must be > 0")
+    return Measurement(point, name, number("pixel"), number("scan"), latitude, longitude, sigma, line)
 
 
 def control_points(measurements: list[Measurement], default_sigma_km: float = 1.0) -> ControlPoints:
-    """Measurements as :class:`ControlPoints` (σ from each measurement, else ``default_sigma_km``)."""
+    """Measurements as :class:`ControlPoints` (σ from each measurement, else ``default_sigma_km``, km)."""
     if not measurements:
         raise SeaiceError("no control-point measurements")
     if not (np.isfinite(default_sigma_km) and default_sigma_km > 0):
@@ -180,18 +231,23 @@ def control_points(measurements: list[Measurement], default_sigma_km: float = 1.
     return ControlPoints.from_degrees(
         [m.pixel for m in measurements], [m.scan for m in measurements],
         [m.latitude_deg for m in measurements], [m.longitude_deg for m in measurements],
-        [default_sigma_km if m.sigma_km is None else m.sigma_km for m in measurements],
+        [default_sigma_km if m.sigma_m is None else m.sigma_m / 1000.0 for m in measurements],
         [m.id for m in measurements])
 
 
-def check_in_image(measurements: list[Measurement], n_pixels: int, n_scans: int, path) -> None:
+def check_in_image(measurements: list[Measurement], n_pixels: int, n_scans: int, path,
+                   options: str = " (--pixels, --scans)") -> None:
     """Refuse measurements outside the image of ``n_pixels`` pixels by ``n_scans`` scan lines (1-based, as the
     1985 images are counted: from 0.5 to ``n + 0.5`` covers every pixel's area).
 
+    Args:
+        options: appended to the message: what sets the image's size.
+
     Raises:
-        SeaiceError: naming the file, the point and its pixel/scan.
+        SeaiceError: naming the file, the line, the point and its pixel/scan.
     """
     for m in measurements:
         if not (0.5 <= m.pixel <= n_pixels + 0.5 and 0.5 <= m.scan <= n_scans + 0.5):
-            raise SeaiceError(f"{path}: point {m.id} at pixel {m.pixel}, scan {m.scan} is outside the image of "
-                              f"{n_pixels} pixels x {n_scans} scan lines (--pixels, --scans)")
+            where = f"{path}, line {m.line}" if m.line else f"{path}"
+            raise SeaiceError(f"{where}: point {m.id} at pixel {m.pixel}, scan {m.scan} is outside the image of "
+                              f"{n_pixels} pixels x {n_scans} scan lines{options}")
