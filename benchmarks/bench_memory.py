@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import publish  # noqa: E402
 
-from seaice_jax.adjust.block import BlockOptions  # noqa: E402
+from seaice_jax.adjust.radar.block import BlockOptions  # noqa: E402
 from seaice_jax.io.project import read_project  # noqa: E402
 from seaice_jax.memory import (  # noqa: E402
     BUDGET_VARIABLE,

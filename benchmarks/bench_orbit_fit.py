@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
-from seaice_jax.adjust.appendix_c import appendix_c_search  # noqa: E402
-from seaice_jax.adjust.orbit_fit import (  # noqa: E402
+from seaice_jax.adjust.orbit.appendix_c import appendix_c_search  # noqa: E402
+from seaice_jax.adjust.orbit.fit import (  # noqa: E402
     OrbitFit,
     control_args,
     fit_scan_model,

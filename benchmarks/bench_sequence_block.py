@@ -49,7 +49,7 @@ from _common import update_results  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
 from seaice_jax.adjust import engine  # noqa: E402
-from seaice_jax.adjust.sequence_block import (  # noqa: E402
+from seaice_jax.adjust.sequence.adjustment import (  # noqa: E402
     SequenceOptions,
     adjust_sequence,
     correlated_tie_covariance,
@@ -57,7 +57,7 @@ from seaice_jax.adjust.sequence_block import (  # noqa: E402
     sequence_problem,
     systematic_tie_covariance,
 )
-from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns  # noqa: E402
+from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns  # noqa: E402
 from seaice_jax.imagery.ties import TieOptions, TiePoints, image_runs  # noqa: E402
 from seaice_jax.sensors.control import ControlPoints  # noqa: E402
 from seaice_jax.simulate.satellite import noaa_pass  # noqa: E402

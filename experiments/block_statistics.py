@@ -2,7 +2,7 @@
 
 Blunder-free simulated AIDJEX blocks — the scenario of ``seaice simulate aidjex`` (10 strips, 600 features, two
 coverages 16 days apart, three drifting stations as control) with fresh seeds — adjusted by
-:func:`~seaice_jax.adjust.block.simultaneous_block` with the default options (``seaice block``), for each
+:func:`~seaice_jax.adjust.radar.block.simultaneous_block` with the default options (``seaice block``), for each
 navigation scope (flight, strip). If the stochastic model is right:
 
 * σ̂0 ≈ 1, and the global test (χ², two-sided, α = 0.05) rejects about 5 % of the blocks (target 3-7 %; the
@@ -41,8 +41,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.block import BlockOptions, simultaneous_block
-from seaice_jax.adjust.quality import critical_value, global_test
+from seaice_jax.adjust.engine.quality import critical_value, global_test
+from seaice_jax.adjust.radar.block import BlockOptions, simultaneous_block
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude
 from seaice_jax.geometry.range_doppler import look_sign

@@ -27,7 +27,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.adjust.orbit.fit import fit_scan_model
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.imagery.coast_control import coast_control
 from seaice_jax.io.coastline import coastline_of_grid

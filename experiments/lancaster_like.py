@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.linalg import block_diag  # noqa: E402
 
-from seaice_jax.adjust.orbit_fit import control_point_deviations, fit_scan_model  # noqa: E402
+from seaice_jax.adjust.orbit.fit import control_point_deviations, fit_scan_model  # noqa: E402
 from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle  # noqa: E402
 from seaice_jax.geometry.projections import MapGrid  # noqa: E402
 from seaice_jax.imagery.remap import remap  # noqa: E402

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.sequential import sequential_block
+from seaice_jax.adjust.radar.sequential import sequential_block
 from seaice_jax.drift.kinematics import fit_transform
 from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario, prudhoe_scenario
 

@@ -16,8 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.multi_image import monte_carlo_comparison
-from seaice_jax.adjust.orbit_fit import (
+from seaice_jax.adjust.engine.quality import global_test
+from seaice_jax.adjust.engine.sharding import sharded_vmap
+from seaice_jax.adjust.orbit.fit import (
     FREE_PARAMETERS,
     ControlPoints,
     control_args,
@@ -25,8 +26,7 @@ from seaice_jax.adjust.orbit_fit import (
     orbit_solver,
     propagate_position_sigma,
 )
-from seaice_jax.adjust.quality import global_test
-from seaice_jax.adjust.sharding import sharded_vmap
+from seaice_jax.adjust.orbit.multi_image import monte_carlo_comparison
 from seaice_jax.geometry.earth import SOLAR_DAY
 from seaice_jax.geometry.scan import Orbit
 from seaice_jax.simulate.satellite import (

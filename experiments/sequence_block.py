@@ -7,7 +7,7 @@ points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan 
 * **per image, 12 control points** (the 1985 practice, ``seaice adjust --method per-image``): one Gauss-Newton
   fit per image;
 * **chained, 12 control points** (the 1985 multi-image practice, source 001 section 3.3,
-  :func:`~seaice_jax.adjust.multi_image.sequential_fit`): image 0 on its control points, every later image on its
+  :func:`~seaice_jax.adjust.orbit.multi_image.sequential_fit`): image 0 on its control points, every later image on its
   own control points plus the ties it shares with an image already solved, their ground positions taken from that
   image's model as fixed control points (σ: the ties' median matching σ on the ground). The ties are those the
   simultaneous adjustment kept (a 1985 operator's secondary points carried no mismatches); stated σ: each fit's own
@@ -22,7 +22,7 @@ points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan 
 
 For every control count also the stated σ with the ties' former systematic term (an affine field per image pair of
 η_o 13 / η_g 8 times its matches' own (XᵀWX)⁻¹, ``FORMER_PAIR_FIELDS``) in place of the phase-dependent bias
-(``SequenceOptions.tie_phase_sigma``, :func:`~seaice_jax.adjust.sequence_block.phase_tie_covariance`), «former pair
+(``SequenceOptions.tie_phase_sigma``, :func:`~seaice_jax.adjust.sequence.adjustment.phase_tie_covariance`), «former pair
 fields». For the 12-point case also: the stated σ without the ties' systematic error terms
 (``SequenceAdjustment.systematic``, «independent tie errors»); the matcher's error against the truth, and the part
 of it common to each image pair (an affine field per pair and axis fitted to the true tie errors: the measurement
@@ -52,16 +52,16 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.linalg import block_diag
 
-from seaice_jax.adjust.multi_image import sequential_fit
-from seaice_jax.adjust.orbit_fit import fit_scan_model, position_jacobian
-from seaice_jax.adjust.sequence_block import (
+from seaice_jax.adjust.orbit.fit import fit_scan_model, position_jacobian
+from seaice_jax.adjust.orbit.multi_image import sequential_fit
+from seaice_jax.adjust.sequence.adjustment import (
     SequenceOptions,
     adjust_sequence,
     phase_tie_covariance,
     sequence_problem,
     systematic_tie_covariance,
 )
-from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
+from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
 from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.imagery.remap import remap
@@ -152,7 +152,7 @@ def tie_errors(ties, truth):
 
 def pair_fields(ties, errors, matched, rows, result, size, correlation, minimum=30):
     """The part of the true tie errors common to each image pair, as ``SequenceOptions``' pair fields model it
-    (:func:`~seaice_jax.adjust.sequence_block.systematic_tie_covariance`): per pair (reference image a, matched
+    (:func:`~seaice_jax.adjust.sequence.adjustment.systematic_tie_covariance`): per pair (reference image a, matched
     image b) with at least ``minimum`` ties kept by ``result`` and per axis of b, the affine field (offset;
     gradients along pixel and scan about the matches' centroid, pixels per image width) fitted by least squares to
     the errors. Returns ``(k, 3)`` each: the coefficients², their variance due to the matches' own noise

@@ -24,14 +24,14 @@ else:
     os.environ.setdefault("JAX_ENABLE_X64", "1")
 
 if TYPE_CHECKING:
-    from seaice_jax.adjust.block import BlockOptions, simultaneous_block
     from seaice_jax.adjust.engine import Adjustment, EngineOptions, solve
-    from seaice_jax.adjust.lsq import Observations, least_squares
-    from seaice_jax.adjust.orbit_fit import fit_scan_model
-    from seaice_jax.adjust.problem import Problem, ResidualBlock
-    from seaice_jax.adjust.radar_timing import GroundPoints, RadarMeasurements, TimingOptions, adjust_radar_timing
-    from seaice_jax.adjust.sequence_block import adjust_sequence
-    from seaice_jax.adjust.variance import robust_adjustment, variance_components
+    from seaice_jax.adjust.engine.lsq import Observations, least_squares
+    from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
+    from seaice_jax.adjust.engine.variance import robust_adjustment, variance_components
+    from seaice_jax.adjust.orbit.fit import fit_scan_model
+    from seaice_jax.adjust.radar.block import BlockOptions, simultaneous_block
+    from seaice_jax.adjust.radar.timing import GroundPoints, RadarMeasurements, TimingOptions, adjust_radar_timing
+    from seaice_jax.adjust.sequence.adjustment import adjust_sequence
     from seaice_jax.geometry.earth import (
         EARTH_ROTATION_RATE,
         MEAN_RADIUS,
@@ -83,14 +83,14 @@ if TYPE_CHECKING:
 __version__ = "0.1.0"
 
 _SOURCES = {
-    "seaice_jax.adjust.block": ("BlockOptions", "simultaneous_block"),
+    "seaice_jax.adjust.radar.block": ("BlockOptions", "simultaneous_block"),
     "seaice_jax.adjust.engine": ("Adjustment", "EngineOptions", "solve"),
-    "seaice_jax.adjust.lsq": ("Observations", "least_squares"),
-    "seaice_jax.adjust.orbit_fit": ("fit_scan_model",),
-    "seaice_jax.adjust.problem": ("Problem", "ResidualBlock"),
-    "seaice_jax.adjust.radar_timing": ("GroundPoints", "RadarMeasurements", "TimingOptions", "adjust_radar_timing"),
-    "seaice_jax.adjust.sequence_block": ("adjust_sequence",),
-    "seaice_jax.adjust.variance": ("variance_components", "robust_adjustment"),
+    "seaice_jax.adjust.engine.lsq": ("Observations", "least_squares"),
+    "seaice_jax.adjust.orbit.fit": ("fit_scan_model",),
+    "seaice_jax.adjust.engine.problem": ("Problem", "ResidualBlock"),
+    "seaice_jax.adjust.radar.timing": ("GroundPoints", "RadarMeasurements", "TimingOptions", "adjust_radar_timing"),
+    "seaice_jax.adjust.sequence.adjustment": ("adjust_sequence",),
+    "seaice_jax.adjust.engine.variance": ("variance_components", "robust_adjustment"),
     "seaice_jax.geometry.earth": ("EARTH_ROTATION_RATE", "MEAN_RADIUS", "SIDEREAL_DAY", "SOLAR_DAY", "WGS84_FLATTENING",
                                   "WGS84_SEMI_MAJOR_AXIS", "cartesian_to_sphere", "ecef_to_geodetic",
                                   "geodetic_to_ecef", "great_circle_distance", "latitude_longitude", "north_east",

@@ -1,5 +1,8 @@
-"""Padding arrays to a few bucket sizes, so jitted functions compile once per bucket rather than once per size."""
+"""Array shapes: padding arrays to a few bucket sizes, so jitted functions compile once per bucket rather than once per
+size; telling traced arrays (inside ``jit``/``vmap``, where nothing can be checked or raised) from concrete ones."""
 
+import jax
+import jax.core
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -22,3 +25,8 @@ def padded_to_bucket(array):
     real data (no NaN, no degenerate geometry), and the caller cuts the results back to the real rows."""
     array = np.asarray(array)
     return pad(array, bucket(array.shape[0]), array[0] if array.shape[0] else 0)
+
+
+def is_traced(*arrays) -> bool:
+    """True when any argument is a JAX tracer (inside jit, vmap or grad), where no error can be raised."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(arrays))

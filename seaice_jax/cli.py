@@ -159,7 +159,7 @@ def _simulate(args) -> int:
 
 
 def _block(args) -> int:
-    from seaice_jax.adjust.block import BlockOptions
+    from seaice_jax.adjust.radar.block import BlockOptions
     from seaice_jax.workflows.radar_block import run_block
 
     options = BlockOptions(navigation_model=args.navigation_model, navigation_scope=args.navigation_scope,

@@ -2,8 +2,10 @@
 vmapped batch of orbit fits."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax.adjust.engine.problem import block_residuals, linearize
 from seaice_jax.imagery.ties import TiePoints
 
 
@@ -46,7 +48,7 @@ one compiled program across test files (the session's persistent compilation cac
 
 @jax.jit
 def vmapped_fits(solver, args, lats, lons):
-    """An orbit solver (:func:`~seaice_jax.adjust.orbit_fit.orbit_solver`) vmapped over realizations ``(runs, n)`` of
+    """An orbit solver (:func:`~seaice_jax.adjust.orbit.fit.orbit_solver`) vmapped over realizations ``(runs, n)`` of
     the known latitudes and longitudes (compiled once per solver structure and number of realizations)."""
     return jax.vmap(lambda a, b: solver({"latitude": a, "longitude": b}, args))(lats, lons)
 
@@ -67,3 +69,22 @@ def lattice_ties(models, latitude, longitude, size, sigma_pixel, sigma_scan):
     ones = np.ones(len(table))
     return TiePoints.measured(table[:, 0].astype(int), tie, table[:, 2], table[:, 3], sigma_pixel * ones,
                               sigma_scan * ones, latitude[kept], longitude[kept])
+
+
+def sequence_rows(block):
+    """``(images (m,), ties (m,) or None)`` of the rows of a sequence's residual block (image ``i``'s unknowns are
+    θ_flat[5 i: 5 i + 5]; tie ``t`` is point ``t``)."""
+    images = np.asarray(block.global_index)[:, 0] // block.global_index.shape[1]
+    return images, None if block.point_index is None else np.asarray(block.point_index)
+
+
+def whitened(block, theta, points):
+    """``(m, c)`` whitened residuals of a sequence's block at θ ``(n_images, 5)`` and points ``(n_ties, 2)``."""
+    return np.asarray(block_residuals(block, jnp.ravel(jnp.asarray(theta)), points))
+
+
+def whitened_jacobians(block, theta, points):
+    """Whitened residuals ``(m, c)`` and Jacobians ``(m, c, 5)``, ``(m, c, d)`` of a sequence's block (the engine's
+    ``vmap(jacfwd)``)."""
+    lin = linearize(block, jnp.ravel(jnp.asarray(theta)), points)
+    return np.asarray(lin.e), np.asarray(lin.theta), np.asarray(lin.point)

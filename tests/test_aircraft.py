@@ -183,7 +183,7 @@ def test_floes_turn_rigidly_about_their_centres():
 
 def test_prudhoe_scenario_single_control_point_removes_most_of_the_error():
     """Source 002, Table 2: one ground control point reduces km-level errors to a few hundred metres."""
-    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.adjust.radar.sequential import sequential_block
     from seaice_jax.simulate.aircraft import prudhoe_scenario
 
     scenario = prudhoe_scenario(seed=1)

@@ -255,8 +255,8 @@ _SHARDED = """
 import sys
 import jax, jax.numpy as jnp, numpy as np
 from seaice_jax import _config
-from seaice_jax.adjust.orbit_fit import orbit_solver
-from seaice_jax.adjust.sharding import sharded_vmap
+from seaice_jax.adjust.orbit.fit import orbit_solver
+from seaice_jax.adjust.engine.sharding import sharded_vmap
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 from seaice_jax.simulate.satellite import overlapping_pair
 assert jax.local_device_count() == 2, jax.devices()

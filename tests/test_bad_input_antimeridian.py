@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.adjust.orbit.fit import fit_scan_model
 from seaice_jax.geometry.earth import wrap_angle
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from seaice_jax.adjust.block import BlockOptions
-from seaice_jax.adjust.block_layout import layout_block
-from seaice_jax.adjust.orbit_fit import check_point_errors, fit_scan_model
+from seaice_jax.adjust.orbit.fit import check_point_errors, fit_scan_model
+from seaice_jax.adjust.radar.block import BlockOptions
+from seaice_jax.adjust.radar.layout import layout_block
 from seaice_jax.cli import main
 from seaice_jax.drift.kinematics import deformation
 from seaice_jax.errors import RankDeficiencyError, SeaiceError

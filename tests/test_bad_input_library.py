@@ -67,7 +67,7 @@ def test_maximum_latitude_beyond_the_pole_is_refused():
 
 
 def test_least_squares_names_a_nan_observation_by_group_and_index():
-    from seaice_jax.adjust.lsq import Observations, least_squares
+    from seaice_jax.adjust.engine.lsq import Observations, least_squares
 
     def line(parameters, x):
         return {"y": parameters["slope"] * x}

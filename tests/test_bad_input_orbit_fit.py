@@ -5,7 +5,7 @@ running its loops to their caps."""
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model, initial_guess
+from seaice_jax.adjust.orbit.fit import fit_scan_model, initial_guess
 from seaice_jax.cli import main
 from seaice_jax.errors import RankDeficiencyError
 from seaice_jax.geometry.scan import ScanModel, satellite_orbit

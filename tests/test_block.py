@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.block import BlockOptions, simultaneous_block
-from seaice_jax.adjust.block_layout import layout_block
+from seaice_jax.adjust.radar.block import BlockOptions, simultaneous_block
+from seaice_jax.adjust.radar.layout import layout_block
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.strips import Measurements
@@ -244,7 +244,7 @@ def test_from_take_off_the_flight_basis_holds_the_simulated_ins_error_with_no_of
     """The simulator's INS error (drift from take-off plus a Schuler oscillation under way) is the flight basis
     from take-off exactly, with a zero offset (no alignment error) and the Schuler terms carrying the error at
     take-off; a take-off after the first strip is refused by name."""
-    from seaice_jax.adjust.block import navigation_basis
+    from seaice_jax.adjust.radar.block import navigation_basis
     from seaice_jax.simulate.aircraft import navigation_error
 
     times = np.linspace(3600.0, 3600.0 + 7200.0, 400)  # s after take-off

@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.block import BlockOptions
-from seaice_jax.adjust.block_layout import layout_block
+from seaice_jax.adjust.radar.block import BlockOptions
+from seaice_jax.adjust.radar.layout import layout_block
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.io.project import read_project, write_project

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.block import BlockOptions, image_sigmas
-from seaice_jax.adjust.block_layout import block_unknowns, mark_weight
+from seaice_jax.adjust.radar.block import BlockOptions, image_sigmas
+from seaice_jax.adjust.radar.layout import block_unknowns, mark_weight
 from seaice_jax.sensors.slar import imaging_time
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, simulate_flight
 

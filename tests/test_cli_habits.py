@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.adjust.orbit.fit import fit_scan_model
 from seaice_jax.cli import build_parser, main
 from seaice_jax.errors import ComputationError, GeometryError, RankDeficiencyError, SeaiceError, exit_code
 from seaice_jax.geometry.earth import SIDEREAL_DAY
@@ -170,7 +170,7 @@ def test_long_commands_say_each_stage_unless_quiet(tmp_path, capsys):
 
 def test_the_block_commands_defaults_are_the_librarys():
     """`seaice --help` must not import JAX, so the parser spells out `BlockOptions`' defaults: they must agree."""
-    from seaice_jax.adjust.block import BlockOptions
+    from seaice_jax.adjust.radar.block import BlockOptions
 
     args = build_parser().parse_args(["block", "project.toml", "--out", "out"])
     defaults = BlockOptions()

@@ -5,12 +5,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust import dense, trust_region
-from seaice_jax.adjust.engine import INSEPARABLE, EngineOptions, solve
-from seaice_jax.adjust.lsq import Observations, make_solver
-from seaice_jax.adjust.problem import Problem, ResidualBlock
-from seaice_jax.adjust.quality import critical_value
-from seaice_jax.adjust.variance import robust_adjustment, variance_components
+from seaice_jax.adjust.engine import dense, gauss_newton, trust_region
+from seaice_jax.adjust.engine.gauss_newton import INSEPARABLE, EngineOptions, solve
+from seaice_jax.adjust.engine.lsq import Observations, make_solver
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
+from seaice_jax.adjust.engine.quality import critical_value
+from seaice_jax.adjust.engine.variance import robust_adjustment, variance_components
 from seaice_jax.errors import SeaiceError
 
 
@@ -206,7 +206,6 @@ def test_robust_reweighting_removes_a_blunder(rng, kind):
 
 
 def test_a_second_solver_of_the_same_shape_compiles_nothing(rng):
-    from seaice_jax.adjust import engine
 
     def decay(p, _):
         return {"y": p["a"] * jnp.exp(-p["b"] * jnp.linspace(0, 2, 9))}
@@ -217,9 +216,9 @@ def test_a_second_solver_of_the_same_shape_compiles_nothing(rng):
         return solver({"y": np.asarray(decay({"a": 2.0, "b": 1.3}, None)["y"]) + rng.normal(0, 0.1, 9)})
 
     fit(1.0)
-    before = engine._solve._cache_size()
+    before = gauss_newton._solve._cache_size()
     result = fit(1.5)
-    assert engine._solve._cache_size() == before and bool(result.converged)
+    assert gauss_newton._solve._cache_size() == before and bool(result.converged)
 
 
 def test_under_vmap_each_lane_stops_on_its_own():
@@ -311,7 +310,7 @@ def test_the_point_blocks_inverse_matches_numpy_and_refuses_what_is_not_positive
     """Plane points (d = 2) are inverted in closed form, others by Cholesky: both against numpy's inverse, over a
     wide range of conditioning; a block that is not positive definite gives NaN (the solve then breaks down by
     name), an unobserved (all-zero, padding) block the identity."""
-    from seaice_jax.adjust.schur import _point_inverse
+    from seaice_jax.adjust.engine.schur import _point_inverse
 
     rng = np.random.default_rng(3)
     factors = rng.normal(size=(200, d, d + 3))

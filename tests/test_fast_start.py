@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from jax.monitoring import register_event_duration_secs_listener, unregister_event_duration_listener
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.adjust.orbit.fit import fit_scan_model
 from seaice_jax.cli import CACHE_VARIABLE, build_parser, compile_cache_folder
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 

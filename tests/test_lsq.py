@@ -5,8 +5,8 @@ import pytest
 from scipy.optimize import least_squares as scipy_least_squares
 from scipy.stats import binom
 
-from seaice_jax.adjust.lsq import Observations, least_squares, make_solver
-from seaice_jax.adjust.quality import critical_value, estimated_blunder, global_test, minimal_detectable_bias
+from seaice_jax.adjust.engine.lsq import Observations, least_squares, make_solver
+from seaice_jax.adjust.engine.quality import critical_value, estimated_blunder, global_test, minimal_detectable_bias
 from seaice_jax.errors import ComputationError, NotConvergedError, RankDeficiencyError
 
 T = np.linspace(0.0, 2.0, 15)

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.multi_image import joint_fit, monte_carlo_comparison, sequential_fit
-from seaice_jax.adjust.orbit_fit import ControlPoints
+from seaice_jax.adjust.orbit.fit import ControlPoints
+from seaice_jax.adjust.orbit.multi_image import joint_fit, monte_carlo_comparison, sequential_fit
 from seaice_jax.errors import SeaiceError
 from seaice_jax.simulate.satellite import overlapping_pair
 

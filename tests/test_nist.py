@@ -18,7 +18,7 @@ from nist_strd import NAMES, log_relative_error, model_function, read
 from seaice_jax import Observations, least_squares
 from seaice_jax._shapes import pad
 from seaice_jax.adjust.engine import EngineOptions, solve
-from seaice_jax.adjust.problem import Problem, ResidualBlock
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
 
 ROWS, WIDTH, PREDICTORS = 256, 9, 2
 OPTIONS = EngineOptions("dense", max_steps=2000, strategy="trust-region")

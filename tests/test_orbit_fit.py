@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from seaice_jax.adjust.lsq import least_squares
-from seaice_jax.adjust.orbit_fit import (
+from seaice_jax.adjust.engine.lsq import least_squares
+from seaice_jax.adjust.engine.quality import global_test
+from seaice_jax.adjust.orbit.fit import (
     DECREASE_TOLERANCE,
     ControlPoints,
     _observations,
@@ -17,7 +18,6 @@ from seaice_jax.adjust.orbit_fit import (
     orbit_solver,
     position_uncertainty,
 )
-from seaice_jax.adjust.quality import global_test
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import SOLAR_DAY
 from seaice_jax.geometry.scan import Orbit
@@ -116,7 +116,7 @@ def test_monte_carlo_scatter_matches_predicted_sigma():
     assert np.all(np.abs(ratio - 1) < 0.10), dict(zip(names, ratio, strict=True))
     # positions across the image: predicted σ (north, east) by propagation vs the scatter of the positions
     grid_p, grid_s = np.meshgrid(np.linspace(1, 512, 4), np.linspace(1, 512, 4))
-    from seaice_jax.adjust.orbit_fit import OrbitFit
+    from seaice_jax.adjust.orbit.fit import OrbitFit
     first = jax.tree_util.tree_map(lambda x: x[0], results)
     fit = OrbitFit(truth, control, "gauss-newton", 0, first)
     sigma_north, sigma_east = (np.asarray(a) for a in

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.polynomial import (
+from seaice_jax.adjust.orbit.affine import (
     AFFINE_TERMS,
     affine_design,
     fit_affine,
@@ -73,8 +73,8 @@ def test_trust_region_and_leave_one_out_expose_extrapolation(rng):
 
 
 def test_affine_touch_up_after_an_orbit_fit_meets_the_control_points(rng):
-    from seaice_jax.adjust.orbit_fit import fit_scan_model
-    from seaice_jax.adjust.polynomial import affine_touch_up
+    from seaice_jax.adjust.orbit.affine import affine_touch_up
+    from seaice_jax.adjust.orbit.fit import fit_scan_model
     from seaice_jax.geometry.earth import great_circle_distance
     from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 

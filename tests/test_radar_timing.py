@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.radar_timing import (
+from seaice_jax.adjust.radar.timing import (
     GroundPoints,
     RadarMeasurements,
     TimingOptions,

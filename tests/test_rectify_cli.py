@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model
+from seaice_jax.adjust.orbit.fit import fit_scan_model
 from seaice_jax.cli import main
 from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points

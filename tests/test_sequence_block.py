@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from seaice_jax.adjust import engine, schur
-from seaice_jax.adjust.problem import Problem
-from seaice_jax.adjust.sequence_block import SequenceOptions, adjust_sequence, sequence_problem
-from seaice_jax.adjust.sequence_model import (
-    group_jacobians,
+from seaice_jax.adjust import engine
+from seaice_jax.adjust.engine import schur
+from seaice_jax.adjust.engine.problem import Problem
+from seaice_jax.adjust.sequence.adjustment import SequenceOptions, adjust_sequence, sequence_problem
+from seaice_jax.adjust.sequence.model import (
     scan_unknowns,
     sequence_observations,
     with_scan_unknowns,
@@ -24,7 +24,7 @@ from seaice_jax.io.sequence import read_sequence
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
 from seaice_jax.workflows.image_sequence import load_models, load_remapped, save_models
-from tests.helpers import lattice_ties
+from tests.helpers import lattice_ties, sequence_rows, whitened_jacobians
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
@@ -217,11 +217,11 @@ def _dense_tie_sandwich(result, correlation, factors):
     points = result.adjustment.parameters["points"][:n_ties]
     design, noise, fields = [], [], {}
     for group in observations.groups.values():
-        _, j_theta, j_point = (np.asarray(a) for a in group_jacobians(group, result.theta, points))
-        sigma, image = np.asarray(group.sigma), np.asarray(group.image)
+        _, j_theta, j_point = whitened_jacobians(group, result.theta, points)
+        sigma, image = np.asarray(group.sigma), sequence_rows(group)[0]
         for row in range(group.rows):
             for axis in range(group.sigma.shape[1]):
-                tie = None if group.tie is None else int(group.tie[row])
+                tie = None if group.point_index is None else int(group.point_index[row])
                 line = _design_line(n_theta, n_ties, int(image[row]), j_theta[row, axis], tie, j_point[row, axis])
                 if tie is not None:
                     first = int(observations.reference_image[tie])
@@ -229,7 +229,7 @@ def _dense_tie_sandwich(result, correlation, factors):
                         fields.setdefault((first, int(image[row]), axis), []).append(
                             (len(design), float(group.data["pixel"][row]), float(group.data["scan"][row]),
                              sigma[row, axis]))
-                noise.append(correlation if group.tie is not None else 1.0)
+                noise.append(correlation if group.point_index is not None else 1.0)
                 design.append(line)
     design, basis = np.array(design), []
     for rows in fields.values():
@@ -340,17 +340,17 @@ def _dense_phase_sandwich(result, start, phase_sigma):
     points = result.adjustment.parameters["points"][:n_ties]
     reference = {}
     for group in observations.groups.values():
-        if group.tie is not None:
+        if group.point_index is not None:
             for row in range(group.rows):
-                tie, image = int(group.tie[row]), int(group.image[row])
+                tie, image = int(group.point_index[row]), int(sequence_rows(group)[0][row])
                 if image == int(observations.reference_image[tie]):
                     reference[tie] = (float(group.data["pixel"][row]), float(group.data["scan"][row]))
     wanted = {}  # (first, second): [(group, row, tie)] of the observations in second of ties referenced in first
     for name, group in observations.groups.items():
-        if group.tie is not None:
+        if group.point_index is not None:
             for row in range(group.rows):
-                tie = int(group.tie[row])
-                first, second = int(observations.reference_image[tie]), int(group.image[row])
+                tie = int(group.point_index[row])
+                first, second = int(observations.reference_image[tie]), int(sequence_rows(group)[0][row])
                 if first != second:
                     wanted.setdefault((first, second), []).append((name, row, tie))
     shifts = {}
@@ -362,12 +362,12 @@ def _dense_phase_sandwich(result, start, phase_sigma):
                                                                                    strict=True)})
     design, fields = [], {}
     for name, group in observations.groups.items():
-        _, j_theta, j_point = (np.asarray(a) for a in group_jacobians(group, result.theta, points))
-        sigma, image = np.asarray(group.sigma), np.asarray(group.image)
+        _, j_theta, j_point = whitened_jacobians(group, result.theta, points)
+        sigma, image = np.asarray(group.sigma), sequence_rows(group)[0]
         for row in range(group.rows):
             first, second, shift = shifts.get((name, row), (None, None, None))
             for axis in range(group.sigma.shape[1]):
-                tie = None if group.tie is None else int(group.tie[row])
+                tie = None if group.point_index is None else int(group.point_index[row])
                 line = _design_line(n_theta, n_ties, int(image[row]), j_theta[row, axis], tie, j_point[row, axis])
                 if shift is not None and np.isfinite(sigma[row, axis]):
                     phase = 2 * np.pi * shift[axis]

@@ -9,10 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.sequence_model import (
+from seaice_jax.adjust.engine.problem import block_residuals
+from seaice_jax.adjust.sequence.model import (
     global_index,
-    group_jacobians,
-    group_residuals,
     scan_unknowns,
     sequence_observations,
     with_scan_unknowns,
@@ -21,7 +20,7 @@ from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
-from tests.helpers import lattice_ties
+from tests.helpers import lattice_ties, sequence_rows, whitened, whitened_jacobians
 
 SIZE = 256
 LATITUDE, LONGITUDE = np.radians(74.0), np.radians(-85.0)
@@ -92,7 +91,7 @@ def test_residuals_vanish_at_the_truth(truth):
     obs = observations(truth)
     points = jnp.zeros((obs.n_ties, 2))
     for name, group in obs.groups.items():
-        residuals = np.asarray(group_residuals(group, obs.start, points))
+        residuals = whitened(group, obs.start, points)
         assert np.all(np.isfinite(residuals)), name
         np.testing.assert_allclose(residuals, 0.0, atol=1e-7, err_msg=name)
 
@@ -104,9 +103,9 @@ def test_tie_residual_is_the_pixel_error_in_units_of_sigma(truth):
     obs = observations(truth)
     group = obs.groups["ties south 256x256"]
     row = 0
-    image, tie = int(group.image[row]), int(group.tie[row])
+    image, tie = int(sequence_rows(group)[0][row]), int(group.point_index[row])
     points = jnp.zeros((obs.n_ties, 2)).at[tie, 1].set(200.0)
-    residual = np.asarray(group_residuals(group, obs.start, points))[row]
+    residual = whitened(group, obs.start, points)[row]
     lat, lon = ties.latitude[tie], ties.longitude[tie] + 200.0 / (MEAN_RADIUS * np.cos(ties.latitude[tie]))
     pixel, scan = (float(a) for a in models[image].inverse(lat, lon))
     expected = np.array([pixel - float(group.data["pixel"][row]), scan - float(group.data["scan"][row])])
@@ -122,22 +121,22 @@ def test_jacobians_match_finite_differences(truth, rng):
     theta = obs.start
     steps = np.array([1e-7, 1e-4, 1e-7, 1e-7, 1e-7])
     for name, group in obs.groups.items():
-        _, j_theta, j_point = (np.asarray(a) for a in group_jacobians(group, theta, points))
+        _, j_theta, j_point = whitened_jacobians(group, theta, points)
         rows = np.arange(group.rows)
         for k in range(5):
             delta = np.zeros(theta.shape)
             delta[:, k] = steps[k]
-            plus = np.asarray(group_residuals(group, theta + delta, points))
-            minus = np.asarray(group_residuals(group, theta - delta, points))
+            plus = whitened(group, theta + delta, points)
+            minus = whitened(group, theta - delta, points)
             numeric = (plus - minus) / (2 * steps[k])
             scale = np.abs(numeric).max() + 1e-12
             np.testing.assert_allclose(j_theta[rows, :, k] / scale, numeric / scale, atol=1e-6, err_msg=f"{name} {k}")
-        if group.tie is not None:
+        if group.point_index is not None:
             for k in range(2):
                 delta = np.zeros((obs.n_ties, 2))
                 delta[:, k] = 0.5
-                numeric = (np.asarray(group_residuals(group, theta, points + delta))
-                           - np.asarray(group_residuals(group, theta, points - delta))) / 1.0
+                numeric = (whitened(group, theta, points + delta)
+                           - whitened(group, theta, points - delta)) / 1.0
                 np.testing.assert_allclose(j_point[rows, :, k], numeric, rtol=1e-6, atol=1e-9, err_msg=name)
 
 
@@ -150,7 +149,7 @@ def test_prior_is_whitened_by_its_covariance(truth, rng):
     obs = sequence_observations(models, prior_mean=mean, prior_covariance=covariance)
     z = rng.normal(size=(3, 5))
     theta = mean + np.einsum("nij,nj->ni", np.linalg.cholesky(covariance), z)
-    np.testing.assert_allclose(np.asarray(group_residuals(obs.groups["prior"], theta, None)), z, rtol=1e-9)
+    np.testing.assert_allclose(whitened(obs.groups["prior"], theta, None), z, rtol=1e-9)
 
 
 def test_residuals_vmap_over_monte_carlo_draws(truth, rng):
@@ -158,9 +157,9 @@ def test_residuals_vmap_over_monte_carlo_draws(truth, rng):
     group = obs.groups["ties north 256x256"]
     points = jnp.zeros((obs.n_ties, 2))
     draws = obs.start[None] + jnp.asarray(rng.normal(0, 1, (4, 3, 5)) * PRIOR_SIGMA[None, None, :])
-    batched = np.asarray(jax.vmap(lambda t: group_residuals(group, t, points))(draws))
+    batched = np.asarray(jax.vmap(lambda t: block_residuals(group, jnp.ravel(t), points))(draws))
     for k in range(4):
-        np.testing.assert_allclose(batched[k], np.asarray(group_residuals(group, draws[k], points)), rtol=1e-12)
+        np.testing.assert_allclose(batched[k], whitened(group, draws[k], points), rtol=1e-12)
 
 
 def _gauss_newton(obs, theta, points, steps=6):
@@ -169,15 +168,15 @@ def _gauss_newton(obs, theta, points, steps=6):
     for _ in range(steps):
         jacobians, residuals = [], []
         for group in obs.groups.values():
-            e, j_theta, j_point = (np.asarray(a) for a in group_jacobians(group, theta, points))
+            e, j_theta, j_point = whitened_jacobians(group, theta, points)
             m, c = e.shape
             full = np.zeros((m, c, n_theta + n_points))
-            index = np.asarray(global_index(group.image))
+            index = np.asarray(group.global_index)
             for k in range(5):
                 full[np.arange(m), :, index[:, k]] = j_theta[:, :, k]
-            if group.tie is not None:
+            if group.point_index is not None:
                 for k in range(2):
-                    full[np.arange(m), :, n_theta + 2 * np.asarray(group.tie) + k] = j_point[:, :, k]
+                    full[np.arange(m), :, n_theta + 2 * np.asarray(group.point_index) + k] = j_point[:, :, k]
             jacobians.append(full.reshape(m * c, -1))
             residuals.append(e.ravel())
         jacobian, residual = np.concatenate(jacobians), np.concatenate(residuals)

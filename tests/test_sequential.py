@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.sequential import PiecewiseCubic, fit_piecewise_cubic, piece_coefficients
+from seaice_jax.adjust.radar.sequential import PiecewiseCubic, fit_piecewise_cubic, piece_coefficients
 from seaice_jax.errors import SeaiceError
 
 
@@ -56,7 +56,7 @@ def simulated_block(errors, strips=3, seed=0, count=600):
 
 
 def test_sequential_block_is_exact_without_errors():
-    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.adjust.radar.sequential import sequential_block
     from seaice_jax.simulate.aircraft import ErrorModel
 
     block, m, plane, truth = simulated_block(ErrorModel.none())
@@ -67,7 +67,7 @@ def test_sequential_block_is_exact_without_errors():
 
 
 def test_internal_adjustment_removes_tie_discrepancies_and_control_fixes_the_datum():
-    from seaice_jax.adjust.sequential import sequential_block
+    from seaice_jax.adjust.radar.sequential import sequential_block
     from seaice_jax.simulate.aircraft import ErrorModel
 
     block, m, plane, truth = simulated_block(ErrorModel())

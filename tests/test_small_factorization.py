@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from nist_strd import NAMES, log_relative_error, model_function, read
 
-from seaice_jax.adjust import dense
-from seaice_jax.adjust.engine import EngineOptions, solve
-from seaice_jax.adjust.lsq import make_solver
-from seaice_jax.adjust.orbit_fit import (
+from seaice_jax.adjust.engine import EngineOptions, dense, solve
+from seaice_jax.adjust.engine.lsq import make_solver
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
+from seaice_jax.adjust.orbit.fit import (
     DECREASE_TOLERANCE,
     _observations,
     control_args,
@@ -20,7 +20,6 @@ from seaice_jax.adjust.orbit_fit import (
     initial_guess,
     orbit_solver,
 )
-from seaice_jax.adjust.problem import Problem, ResidualBlock
 from seaice_jax.geometry.earth import wrap_angle
 from seaice_jax.simulate.satellite import noaa_image, perturb_known_positions, simulate_control_points
 from tests.helpers import FIT_LANES, vmapped_fits

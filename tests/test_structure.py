@@ -58,8 +58,8 @@ def test_layer_rule_is_checkable():
     seen = {target for module, path in _modules().items() for _, target, _ in _imports(path, module)}
     assert "seaice_jax.geometry.earth" in seen and "seaice_jax.errors" in seen
     assert _layer("seaice_jax.workflows.radar_block") > _layer("seaice_jax.io.project") > _layer(
-        "seaice_jax.drift.kinematics") > _layer("seaice_jax.adjust.lsq") > _layer("seaice_jax.sensors.slar") > _layer(
-        "seaice_jax.geometry.scan") > _layer("seaice_jax.errors")
+        "seaice_jax.drift.kinematics") > _layer("seaice_jax.adjust.engine.lsq") > _layer(
+        "seaice_jax.sensors.slar") > _layer("seaice_jax.geometry.scan") > _layer("seaice_jax.errors")
 
 
 def test_no_import_goes_up_a_layer():
@@ -72,6 +72,33 @@ def test_no_import_goes_up_a_layer():
                 problems.append(f"{path.relative_to(ROOT)}:{line}: {module} (layer {_layer(module)}) imports "
                                 f"{target} (layer {_layer(target)})")
     assert not problems, "\n".join(problems)
+
+
+ADJUST_MODELS = ("orbit", "radar", "sequence")
+"""The model packages of ``seaice_jax.adjust``, each declaring its problems on the engine."""
+
+
+def test_engine_imports_only_the_package_base():
+    """``adjust.engine`` knows no model, sensor, geometry or file format: besides its own modules it imports only
+    layer-0 modules of the package (errors, array shapes, small linear algebra); a model package imports the engine
+    and no other model package."""
+    problems = []
+    for module, path in _modules().items():
+        if not module.startswith("seaice_jax.adjust."):
+            continue
+        part = module.split(".")[2]
+        for line, source, names in _imports(path, module):
+            # ``from seaice_jax.adjust import engine`` imports the module seaice_jax.adjust.engine
+            for target in [f"{source}.{n}" for n in names] if source == "seaice_jax.adjust" else [source]:
+                if part == "engine":
+                    allowed = not target.startswith("seaice_jax.") or target.startswith(
+                        "seaice_jax.adjust.engine") or _layer(target) == 0
+                else:
+                    allowed = not target.startswith("seaice_jax.adjust") or target.split(".")[2] in (part, "engine")
+                if not allowed:
+                    problems.append(f"{path.relative_to(ROOT)}:{line}: {module} imports {target}")
+    assert not problems, "\n".join(problems)
+    assert {m.split(".")[2] for m in _modules() if m.startswith("seaice_jax.adjust.")} == {"engine", *ADJUST_MODELS}
 
 
 def test_no_private_name_crosses_a_module():

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
+from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.projections import MapGrid
 from seaice_jax.imagery.ties import TieOptions, find_ties, grid_mask, image_runs, transfer

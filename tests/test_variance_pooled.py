@@ -1,12 +1,12 @@
 """Variance components of groups that only meet in differences: their split is not determined, their pooled
-factor is (seaice_jax.adjust.variance, ``pooled``)."""
+factor is (seaice_jax.adjust.engine.variance, ``pooled``)."""
 
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from seaice_jax.adjust.problem import Problem, ResidualBlock
-from seaice_jax.adjust.variance import variance_components
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
+from seaice_jax.adjust.engine.variance import variance_components
 from seaice_jax.errors import SeaiceError
 
 PAIRS = 200

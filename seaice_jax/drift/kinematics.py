@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import padded_to_bucket
-from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
+from seaice_jax.adjust.engine.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
 from seaice_jax.timefmt import time_after
 

@@ -1,15 +1,9 @@
 """Turning NaN markers of impossible geometry into clear errors at the public API."""
 
-import jax
-import jax.core
 import numpy as np
 
+from seaice_jax._shapes import is_traced
 from seaice_jax.errors import GeometryError
-
-
-def is_traced(*arrays) -> bool:
-    """True when any argument is a JAX tracer (inside jit, vmap or grad), where no error can be raised."""
-    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(arrays))
 
 
 def raise_where_nan(result, what: str, reason: str, vector_axes: int = 0):

@@ -13,8 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import ArrayLike
 
+from seaice_jax._shapes import is_traced
 from seaice_jax.errors import GeometryError
-from seaice_jax.geometry._checks import is_traced, raise_where_nan
+from seaice_jax.geometry._checks import raise_where_nan
 from seaice_jax.geometry.earth import MEAN_RADIUS
 
 LookSide = Literal["right", "left"]

@@ -26,8 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from seaice_jax._shapes import is_traced
 from seaice_jax.errors import SeaiceError
-from seaice_jax.geometry._checks import is_traced, raise_where_nan
+from seaice_jax.geometry._checks import raise_where_nan
 from seaice_jax.geometry._vectors import as_float as _as_float
 from seaice_jax.geometry.earth import MEAN_RADIUS, SIDEREAL_DAY, latitude_longitude, unit_vector
 from seaice_jax.geometry.earth import wrap_angle as _wrap

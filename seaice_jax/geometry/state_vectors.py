@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from seaice_jax.geometry._checks import is_traced
+from seaice_jax._shapes import is_traced
 from seaice_jax.geometry._vectors import as_float
 from seaice_jax.geometry.trajectory import Trajectory
 

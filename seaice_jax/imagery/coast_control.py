@@ -19,8 +19,8 @@ of a coarse-to-fine loop:
    at the peak, H_ρ its Hessian per pixel², n the independent pixels of the window), the larger axis of C taken as
    an isotropic σ, times :data:`MATCH_SIGMA_SCALE` (calibrated: the fits' σ̂0 is 1 on simulated images), turned into
    metres with the local pixel size;
-4. fits the scan model (:func:`~seaice_jax.adjust.orbit_fit.fit_scan_model`) and removes, one at a time, the point
-   with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.quality`),
+4. fits the scan model (:func:`~seaice_jax.adjust.orbit.fit.fit_scan_model`) and removes, one at a time, the point
+   with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.engine.quality`),
    refitting each time.
 
 The next level starts from the fitted model with a smaller search, smaller windows and less smoothing.
@@ -33,8 +33,7 @@ import cv2
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import OrbitFit, fit_scan_model
-from seaice_jax.adjust.quality import critical_value
+from seaice_jax.adjust.orbit.fit import OrbitFit, fit_scan_model
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.sensors.control import ControlPoints
@@ -302,7 +301,6 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
     The loop fits padded point sets (:data:`PAD`) in which a removed point keeps its place with no weight; with
     ``final`` the kept points are fitted once more on their own, so that the returned fit's σ̂0, redundancies and
     covariance are those of exactly these points."""
-    limit = float(critical_value(alpha))
     size = PAD * -(-len(control) // PAD)
     padding = size - len(control)
     pixel, scan, latitude, longitude, sigma = (np.concatenate([np.asarray(a), np.full(padding, np.asarray(a)[0])])
@@ -315,11 +313,12 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
         padded = ControlPoints(pixel, scan, latitude, longitude, np.where(active, sigma, _NO_WEIGHT), ids)
         fit = fit_scan_model(padded, model.orbit, direction=model.direction, n_pixels=model.n_pixels,
                              n_scans=model.n_scans)
-        w_lat, w_lon = fit.w_statistics()
-        worst = np.where(active, np.maximum(np.abs(w_lat), np.abs(w_lon)), 0.0)
-        if worst.max() <= limit or len(rejected) + 1 > max_rejected * len(control):
+        adjustment = fit.adjustment  # a Gauss-Newton fit: always there
+        worst = [] if adjustment is None else adjustment.worst(lambda flag: flag.row if active[flag.row] else None,
+                                                               alpha, groups=("latitude", "longitude"))
+        if not worst or len(rejected) + 1 > max_rejected * len(control):
             break
-        drop = int(np.argmax(worst))
+        drop = worst[0]
         rejected.append(ids[drop])
         active[drop] = False
     if final:

@@ -46,7 +46,7 @@ Method:
    the held-out seeds 3 and 4 (1.09, 1.03; 0.92, 1.06).
    Neighbouring ties' errors are correlated (overlapping templates: about 0.4 within 5 pixels, 0.15-0.2 at 5-10,
    none beyond 10), which no σ here describes; the adjustment estimates the ties' variance factor from their
-   residuals (:mod:`seaice_jax.adjust.sequence_block`).
+   residuals (:mod:`seaice_jax.adjust.sequence.adjustment`).
 
 6. **Runs**: a ground point seen in k images is one tie with k observations (all matched against one reference)
    while k ≤ ``max_images``; seen in more (a season of one area: up to every image), it gives several ties, each
@@ -69,7 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import pad
-from seaice_jax.adjust.sequence_model import scan_unknowns, with_scan_unknowns
+from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.projections import MapGrid, TangentPlane

@@ -3,8 +3,8 @@
 import numpy as np
 
 from seaice_jax import __version__
-from seaice_jax.adjust.orbit_fit import OrbitFit, check_point_errors
-from seaice_jax.adjust.quality import global_test
+from seaice_jax.adjust.engine.quality import global_test
+from seaice_jax.adjust.orbit.fit import OrbitFit, check_point_errors
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel
 

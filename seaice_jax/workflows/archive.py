@@ -148,8 +148,8 @@ def remap_image(project: SequenceProject, entry: dict, index: int, staging: str 
     image = read_sequence_image(project, entry, index)
     alone = SequenceProject(project.path, project.epoch, project.grid, project.grid_spec, (image,))
     stack, (rectification,) = remap_sequence(alone, method, fill, check_reached=False)
-    write_geotiff(staging / f"{image.name}.tif", stack.values[0], project.grid,
-                  f"{image.name} {time_after(project.epoch, image.time)}")
+    moment = time_after(project.epoch, image.time)
+    write_geotiff(staging / f"{image.name}.tif", stack.values[0], project.grid, f"{image.name} {moment}", time=moment)
     with atomic_path(_part_path(staging, index)) as temporary, open(temporary, "wb") as stream:
         np.savez(stream, values=stack.values[0], valid=stack.valid[0], sigma=stack.sigma[0])
     return RemappedImage(index, float(image.time), rectification, stack.covariance, os.getpid(),

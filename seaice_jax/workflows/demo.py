@@ -16,7 +16,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import fit_scan_model, position_uncertainty
+from seaice_jax.adjust.orbit.fit import fit_scan_model, position_uncertainty
 from seaice_jax.files import atomic_path, write_csv, write_json
 from seaice_jax.geometry.earth import latitude_longitude
 from seaice_jax.geometry.projections import TangentPlane, nsidc_polar_stereographic

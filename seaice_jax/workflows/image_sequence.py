@@ -16,7 +16,7 @@ from typing import Generic, TypeVar, cast
 import numpy as np
 from tqdm.auto import tqdm
 
-from seaice_jax.adjust.orbit_fit import (
+from seaice_jax.adjust.orbit.fit import (
     OrbitFit,
     control_point_deviations,
     fit_scan_model,

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.block import BlockOptions, BlockResult, simultaneous_block
 from seaice_jax.adjust.engine import not_converged_error
-from seaice_jax.adjust.quality import global_test
-from seaice_jax.adjust.sequential import SequentialResult, sequential_block
+from seaice_jax.adjust.engine.quality import global_test
+from seaice_jax.adjust.radar.block import BlockOptions, BlockResult, simultaneous_block
+from seaice_jax.adjust.radar.sequential import SequentialResult, sequential_block
 from seaice_jax.drift.kinematics import DriftVectors, TransformFit, drift_vectors, error_ellipses, fit_transform
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv, write_geojson
@@ -127,7 +127,7 @@ def _drift_pair(project: Project, k: int, first, displacement, covariance) -> Dr
 def block_unknowns(coverages, options: BlockOptions) -> int:
     """The number of global unknowns (navigation-error coefficients of both components, radar constants) of the
     simultaneous adjustment of ``coverages``, counted from the strips' spans as the block's layout numbers them
-    (:func:`~seaice_jax.adjust.block_layout.layout_block`), without building it."""
+    (:func:`~seaice_jax.adjust.radar.layout.layout_block`), without building it."""
     count, flight, components = 0, options.navigation_scope == "flight", 2
     for coverage in coverages:
         start = min(s.start_time for s in coverage.strips)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.orbit_fit import OrbitFit, fit_scan_model
+from seaice_jax.adjust.orbit.fit import OrbitFit, fit_scan_model
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import SIDEREAL_DAY
 from seaice_jax.geometry.scan import Orbit, ScanModel, satellite_orbit

@@ -278,7 +278,8 @@ def run_sar_remap(annotation_path: FilePath, image_path: FilePath, out_dir: File
     """``seaice sar remap``: a GRD (or stripmap) image onto the NSIDC polar stereographic grid by the exact
     zero-Doppler model: every cell centre -> azimuth time and slant range -> image line and pixel -> bilinear
     sample. Writes ``remapped.tif`` (float32 GeoTIFF, NaN outside the image), ``position_sigma.tif`` (m: the
-    horizontal σ from ``orbit_sigma``), ``remapped.png`` and ``report.txt``.
+    horizontal σ from ``orbit_sigma``), both with the zero-Doppler time of the image's middle line as their
+    acquisition time, ``remapped.png`` and ``report.txt``.
 
     Args:
         spacing: grid cell size, m. height: ellipsoidal height of the surface, m (default: the median of the
@@ -311,10 +312,12 @@ def run_sar_remap(annotation_path: FilePath, image_path: FilePath, out_dir: File
         remapped, valid = resample(image, line, pixel, np.isfinite(line) & np.isfinite(pixel))
         sigma = _grid_field(annotation, orbit_position_sigma(annotation, orbit_sigma, height), line, pixel)
         sigma = np.where(valid, sigma, np.nan)
+        middle = _utc(annotation, annotation.line_time([(annotation.lines - 1) / 2]))[0]  # the scene's mid-line time
         written = [write_geotiff(folder.path / "remapped.tif", remapped, grid,
-                                 f"{annotation.path.name} remapped by the zero-Doppler model"),
+                                 f"{annotation.path.name} remapped by the zero-Doppler model", time=middle),
                    write_geotiff(folder.path / "position_sigma.tif", sigma, grid,
-                                 f"horizontal position sigma (m) from an orbit sigma of {orbit_sigma:g} m per axis")]
+                                 f"horizontal position sigma (m) from an orbit sigma of {orbit_sigma:g} m per axis",
+                                 time=middle)]
         report = "\n".join([
             f"{annotation.path.name} (decimation {decimation}) -> {grid.n_rows} x {grid.n_columns} cells of "
             f"{spacing:g} m, {crs_name(grid.projection)}, surface height "

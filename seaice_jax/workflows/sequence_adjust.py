@@ -1,6 +1,6 @@
 """``seaice adjust``: the scan models of an image sequence, per image (the 1985 practice: each image on its own
 control points) or simultaneously (all images, tie points found automatically on the static surface, and the control
-points in one adjustment: :func:`~seaice_jax.adjust.sequence_block.adjust_sequence`), written with their joint
+points in one adjustment: :func:`~seaice_jax.adjust.sequence.adjustment.adjust_sequence`), written with their joint
 covariance to ``models.npz``, which ``seaice remap --models`` adopts (``seaice track`` then states drift σ with the
 correlation of the two images' geolocation errors).
 
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import binary_erosion
 
-from seaice_jax.adjust.sequence_block import SequenceAdjustment, SequenceOptions, adjust_sequence
+from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment, SequenceOptions, adjust_sequence
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS

@@ -1,7 +1,7 @@
 """Host-side layout of a radar block: the unknowns' names and priors, the observation tables, start values.
 
 Everything here runs once per block, in NumPy (with one jitted geometry evaluation per strip); the arrays it
-builds become the residual blocks of :mod:`seaice_jax.adjust.block`.
+builds become the residual blocks of :mod:`seaice_jax.adjust.radar.block`.
 """
 
 from dataclasses import dataclass
@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import bucket, pad
-from seaice_jax.adjust.navigation_basis import navigation_basis
+from seaice_jax.adjust.radar.navigation_basis import navigation_basis
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import latitude_longitude, north_east
 from seaice_jax.geometry.range_doppler import look_sign

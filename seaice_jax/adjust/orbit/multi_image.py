@@ -13,15 +13,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.lsq import Adjustment, Observations, least_squares, make_solver
-from seaice_jax.adjust.orbit_fit import (
+from seaice_jax.adjust.engine.lsq import Adjustment, Observations, least_squares, make_solver
+from seaice_jax.adjust.engine.sharding import sharded_vmap
+from seaice_jax.adjust.orbit.fit import (
     FREE_PARAMETERS,
     fit_scan_model,
     free_mask,
     orbit_solver,
     propagate_position_sigma,
 )
-from seaice_jax.adjust.sharding import sharded_vmap
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import wrap_angle as _wrap
 from seaice_jax.geometry.scan import ScanModel
@@ -97,7 +97,7 @@ def sequential_fit(images: list[ImageObservations]):
 
 
 def joint_problem(images: list[ImageObservations], models, positions):
-    """The joint adjustment's ``(model, parameters, observations, free, args)`` for :mod:`seaice_jax.adjust.lsq`.
+    """The joint adjustment's ``(model, parameters, observations, free, args)`` for :mod:`seaice_jax.adjust.engine.lsq`.
 
     Parameters: ``{"images": (ScanModel, ...), "points": (k, 2) latitude/longitude}``. Observation groups per
     image ``j``: ``"j:primary latitude"``/``"j:primary longitude"`` (known positions) and
@@ -179,7 +179,7 @@ _BATCH = 100
 
 def _in_batches(function, realizations):
     """``vmap(function)`` over the leading axis of ``realizations`` (a pytree of arrays), ``_BATCH`` at a time
-    under one compilation, each batch split over the local devices (:func:`~seaice_jax.adjust.sharding.sharded_vmap`):
+    under one compilation, each batch split over the local devices (:func:`~..engine.sharding.sharded_vmap`):
     a 400-lane vmap of the solver's while_loop is many times slower per lane than four of 100 on the CPU."""
     solve = sharded_vmap(function)
     runs = jax.tree_util.tree_leaves(realizations)[0].shape[0]

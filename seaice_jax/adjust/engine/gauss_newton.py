@@ -1,6 +1,6 @@
 """The adjustment engine: every least-squares problem of the project is solved here.
 
-A :class:`~seaice_jax.adjust.problem.Problem` (residual blocks over global unknowns and points) goes through
+A :class:`~seaice_jax.adjust.engine.problem.Problem` (residual blocks over global unknowns and points) goes through
 one nonlinear loop, a damped Gauss-Newton (Levenberg-Marquardt: λ = 0 while steps decrease the square sum,
 raised tenfold on a failed step, lowered tenfold on a good one) in a single ``lax.while_loop``, so under ``vmap``
 each lane stops when it has converged and no lane pays for another's damping. ``strategy="trust-region"`` (dense
@@ -9,7 +9,7 @@ some far starts a plain Gauss-Newton step would have handled, it solves the hard
 from or creeps along (all of NIST's StRD suite from both starts). The linear algebra is a backend:
 ``"dense"`` (the SVD of the column-scaled Jacobian, by LAPACK's QR and SVD or, for a handful of unknowns, by Jacobi
 rotations in elementwise operations that vectorize across a batch: :mod:`.dense`) or ``"schur"`` (points
-eliminated, reduced system by Cholesky, :mod:`.schur`); :func:`choose_backend` picks by the size. Each iteration
+eliminated, reduced system by Cholesky, :mod:`.schur`), chosen by the caller (``EngineOptions.backend``). Each iteration
 linearizes once, at the trial point: its square sum decides the step, and an accepted step keeps its linearization
 for the next iteration (and, at the end, for the statistics), so no residual function is evaluated twice at a point.
 
@@ -32,18 +32,21 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, PyTree
 
-from seaice_jax._shapes import bucket, pad
-from seaice_jax.adjust import dense, schur, trust_region
-from seaice_jax.adjust.problem import Problem, linearize_all, predicted_decrease, unlinearized
-from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value, estimated_blunder, minimal_detectable_bias, w_test
+from seaice_jax._shapes import bucket, is_traced, pad
+from seaice_jax.adjust.engine import dense, schur, trust_region
+from seaice_jax.adjust.engine.problem import Problem, linearize_all, predicted_decrease, unlinearized
+from seaice_jax.adjust.engine.quality import (
+    DEFAULT_ALPHA,
+    critical_value,
+    estimated_blunder,
+    minimal_detectable_bias,
+    w_test,
+)
 from seaice_jax.errors import NotConvergedError, SeaiceError
-from seaice_jax.geometry._checks import is_traced
 
 BACKENDS = ("dense", "schur")
 FACTORIZATIONS = dense.FACTORIZATIONS
 STRATEGIES = ("damped", "trust-region")
-DENSE_LIMIT = 400
-"""Unknowns up to which :func:`choose_backend` takes the dense backend (its cost grows with their cube)."""
 MAX_DAMPING = 1e12
 """λ (relative to the column-scaled normal matrix, whose largest eigenvalue is ≥ 1) at which a point where no step
 decreases the square sum is taken as the minimum (steps of 1e-12 of the gradient's)."""
@@ -89,10 +92,10 @@ class EngineOptions:
         initial_radius: the trust region's first radius in units of ‖D x₀‖ (D: the column norms; where x₀ = 0
             the first step is Gauss-Newton's). 1 (scipy's ``trf``) keeps the first step within the start's own
             size; MINPACK's 100 lets the first Gauss-Newton step through almost always (and BoxBOD start 1 off).
-        factorization: the dense backend's SVD (:data:`~seaice_jax.adjust.dense.FACTORIZATIONS`): ``"lapack"``
+        factorization: the dense backend's SVD (:data:`~seaice_jax.adjust.engine.dense.FACTORIZATIONS`): ``"lapack"``
             (the default: QR and SVD, the fastest for one problem) or ``"jacobi"`` (rotations in elementwise
             operations: a batch of small problems under ``vmap`` at vector speed; up to
-            :data:`~seaice_jax.adjust.dense.JACOBI_LIMIT` unknowns, LAPACK beyond).
+            :data:`~seaice_jax.adjust.engine.dense.JACOBI_LIMIT` unknowns, LAPACK beyond).
     """
 
     backend: str = "dense"
@@ -118,12 +121,6 @@ class EngineOptions:
             raise SeaiceError(f"EngineOptions.factorization={self.factorization!r}: choose one of {FACTORIZATIONS}")
         if not self.initial_radius > 0:
             raise SeaiceError(f"EngineOptions.initial_radius={self.initial_radius}: must be > 0")
-
-
-def choose_backend(problem: Problem) -> str:
-    """``"dense"`` for small problems or problems without points, else ``"schur"``."""
-    has_points = problem.points.shape[0] > 0
-    return "schur" if has_points and problem.unknowns > DENSE_LIMIT else "dense"
 
 
 @dataclass(frozen=True)
@@ -161,7 +158,7 @@ class Adjustment(eqx.Module):
         point_cofactor: ``(P, d, d)`` the points' cofactor blocks; point_pair_cofactor: ``(R, d, d)`` the
             requested cross blocks between two points.
         sigma0: σ̂0 = √(vᵀPv / r) (NaN when r = 0). degrees_of_freedom: r (``None`` from a solve under ``jit``
-            whose r was traced; :class:`~seaice_jax.adjust.lsq.Solver` sets it on the way out).
+            whose r was traced; :class:`~seaice_jax.adjust.engine.lsq.Solver` sets it on the way out).
         residuals, redundancy, standardized_residuals, minimal_detectable_bias, estimated_errors: ``{group: …}``
             per observation (computed − observed residuals in observation units; redundancy numbers; w; MDB;
             −v/r).
@@ -241,6 +238,22 @@ class Adjustment(eqx.Module):
                                   float(tables[0][row, component]), float(tables[1][row, component]), separable,
                                   None if separable or partner < 0 else locate(int(partner))))
         return sorted(flags, key=lambda f: -abs(f.w))
+
+    def worst(self, unit_of, alpha: float = DEFAULT_ALPHA, batch: float = 1.0, groups=None) -> list:
+        """Baarda's data snooping, one round: the units (a point, a tie, a station: whatever ``unit_of(flag)``
+        returns for a flagged observation; ``None`` for one that cannot be removed) whose worst |w| beyond the
+        critical value of ``alpha`` is at least ``batch`` times the largest, worst first (``batch`` 1: the single
+        worst unit, the strict method). Every snooping loop of the package removes what this returns and solves
+        again (eager use)."""
+        worst: dict = {}
+        for flag in self.flagged(alpha, groups):
+            unit = unit_of(flag)
+            if unit is not None:
+                worst[unit] = max(worst.get(unit, 0.0), abs(flag.w))
+        if not worst:
+            return []
+        largest = max(worst.values())
+        return [unit for unit, w in sorted(worst.items(), key=lambda item: -item[1]) if w >= batch * largest]
 
 
 def degrees_of_freedom(problem: Problem) -> int:
@@ -561,7 +574,7 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
         names: names of the global unknowns (for the result and messages).
         cross_points: ``(R, 2)`` point pairs whose cross-cofactor blocks are wanted (e.g. a feature's position on
             two dates, for its drift).
-        layout: the Schur backend's tables (:func:`~seaice_jax.adjust.schur.schur_layout`), built here if
+        layout: the Schur backend's tables (:func:`~seaice_jax.adjust.engine.schur.schur_layout`), built here if
             ``None`` (that needs concrete point indices: build it outside ``vmap``).
         dof: degrees of freedom (counted here if ``None``, which needs concrete σ); traced, it leaves the result's
             ``degrees_of_freedom`` ``None``.

@@ -1,16 +1,15 @@
-"""Options of the radar block adjustment (:func:`~seaice_jax.adjust.block.simultaneous_block`): the navigation-error
+"""Options of the radar block adjustment (:func:`~.block.simultaneous_block`): the navigation-error
 model and its scope, the stochastic model's defaults (what each σ stands for), the solver and the quality control."""
 
 from dataclasses import dataclass
 
-from seaice_jax.adjust import engine
-from seaice_jax.adjust.quality import DEFAULT_ALPHA
-from seaice_jax.adjust.variance import ROBUST
+from seaice_jax.adjust.engine.quality import DEFAULT_ALPHA
+from seaice_jax.adjust.engine.variance import ROBUST
 from seaice_jax.errors import SeaiceError
 from seaice_jax.sensors.navigation import ERROR_MODELS
 
 SOLVERS = ("auto", "dense", "schur")
-DENSE_LIMIT = engine.DENSE_LIMIT
+DENSE_LIMIT = 400
 """Unknowns up to which ``solver="auto"`` uses the dense backend."""
 
 
@@ -71,7 +70,7 @@ class BlockOptions:
             or the step is smaller than ``tolerance`` standard deviations (ΔᵀNΔ < tolerance²).
         alpha: significance level of the w-tests that flag blunders.
         variance_components: estimate a variance factor for the image x and y coordinates, the nadir returns and
-            the control points (iterated Förstner/Helmert, :func:`~seaice_jax.adjust.variance.variance_components`)
+            the control points (iterated Förstner/Helmert, :func:`~..engine.variance.variance_components`)
             and adjust with the σ rescaled by them.
         robust: ``None``, ``"huber"`` or ``"danish"``: iteratively reweighted (the w-tests of the final weights).
 

@@ -10,8 +10,8 @@ deformation of the whole block, named in the error.
 import jax
 import numpy as np
 
-from seaice_jax.adjust.problem import linearize_all
-from seaice_jax.adjust.schur import reduced_system
+from seaice_jax.adjust.engine.problem import linearize_all
+from seaice_jax.adjust.engine.schur import reduced_system
 from seaice_jax.errors import RankDeficiencyError
 
 NULL_TOLERANCE = 1e-8

@@ -8,7 +8,7 @@ and of its slant range (the echo window's delay, atmosphere). Per image i:
     slant range                   = measured range + range_offset[i].
 
 They are estimated from control points (image measurements of known ground points) and tie points (one unknown
-ground point measured in several images) through the one engine (:func:`seaice_jax.adjust.lsq.make_solver`): the
+ground point measured in several images) through the one engine (:func:`seaice_jax.adjust.engine.lsq.make_solver`): the
 model is the zero-Doppler geolocation itself (:func:`seaice_jax.geometry.range_doppler.refined_imaging_time`,
 differentiated by autodiff through its Newton steps), with covariance, σ̂0 and the w-test of every measurement.
 With ties only, the offsets have no datum; priors (the orbit's stated accuracy) give it.
@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
+from seaice_jax.adjust.engine.lsq import Adjustment, Observations, Solver, checked_solve, make_solver
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import geodetic_to_ecef
 from seaice_jax.geometry.range_doppler import refined_imaging_time

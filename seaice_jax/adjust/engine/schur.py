@@ -24,7 +24,7 @@ from jaxtyping import Array, Float, Int
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax._small_linalg import symmetric_inverse_2x2
-from seaice_jax.adjust.problem import Problem
+from seaice_jax.adjust.engine.problem import Problem
 
 
 class SchurLayout(eqx.Module):

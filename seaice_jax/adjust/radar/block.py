@@ -1,12 +1,12 @@
 """Simultaneous block adjustment of radar strips: the radar block *model* on the adjustment engine.
 
 Source 000 (section 2) says "a rigorous method would solve for all unknowns simultaneously, thereby minimizing the
-weighted square sum of all observation errors"; its sequential method (:mod:`seaice_jax.adjust.sequential`)
+weighted square sum of all observation errors"; its sequential method (:mod:`seaice_jax.adjust.radar.sequential`)
 approximates that. Here it is done rigorously, by :mod:`seaice_jax.adjust.engine`.
 
 Unknowns (global, :mod:`.block_layout`):
   * the coefficients of a navigation-error model (north and east; constant, linear, Schuler or cubic B-spline,
-    :func:`~seaice_jax.adjust.navigation_basis.navigation_basis`), all in metres, either per strip
+    :func:`~seaice_jax.adjust.radar.navigation_basis.navigation_basis`), all in metres, either per strip
     (``scope="strip"``) or, as an inertial platform behaves, one continuous error per flight (``scope="flight"``:
     the drift and the Schuler oscillation are shared by all strips of a coverage, with the flight's offset at its
     start; each later strip has its own offset with the prior of the turn perturbations accumulated before it, and
@@ -46,13 +46,13 @@ import numpy as np
 from seaice_jax._shapes import bucket, pad
 from seaice_jax._small_linalg import inverse_2x2
 from seaice_jax.adjust import engine
-from seaice_jax.adjust.block_layout import BlockLayout, layout_block
-from seaice_jax.adjust.block_options import DENSE_LIMIT, SOLVERS, BlockOptions
-from seaice_jax.adjust.datum import check_datum
-from seaice_jax.adjust.navigation_basis import navigation_basis
-from seaice_jax.adjust.problem import Problem, ResidualBlock
-from seaice_jax.adjust.schur import schur_layout
-from seaice_jax.adjust.variance import robust_adjustment, variance_components
+from seaice_jax.adjust.engine.datum import check_datum
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
+from seaice_jax.adjust.engine.schur import schur_layout
+from seaice_jax.adjust.engine.variance import robust_adjustment, variance_components
+from seaice_jax.adjust.radar.layout import BlockLayout, layout_block
+from seaice_jax.adjust.radar.navigation_basis import navigation_basis
+from seaice_jax.adjust.radar.options import DENSE_LIMIT, SOLVERS, BlockOptions
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude
 from seaice_jax.geometry.range_doppler import ground_point

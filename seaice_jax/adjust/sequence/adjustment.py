@@ -1,7 +1,7 @@
 """The simultaneous adjustment of a satellite image sequence on the shared engine (issue 13).
 
 Every image's five scan-model unknowns, every tie point's ground position and the control points of all images
-in one least-squares adjustment (:mod:`seaice_jax.adjust.sequence_model` gives the observation groups), solved by
+in one least-squares adjustment (:mod:`seaice_jax.adjust.sequence.model` gives the observation groups), solved by
 the engine's Schur-complement backend: the tie points are eliminated point by point, so the work grows linearly
 with the ties and the reduced system has 5 unknowns per image. The result carries the full joint covariance of
 all images' unknowns (σ̂0² S⁻¹ of the reduced system), so two images' geolocation errors keep their correlation
@@ -14,13 +14,13 @@ w) are removed, all of their observations at once (in a tie seen by two images t
 correlated: which image holds the wrong match cannot be told), and the adjustment is repeated until no tie
 observation is flagged. Removal sets σ to ∞ (the engine's padding), so every round reuses the compiled solve; the
 rows and tie points are padded to bucket sizes the same way, so sequences of similar size share it too.
-With ``robust`` the first solve is an iteratively reweighted one (:func:`~seaice_jax.adjust.variance.robust_adjustment`)
+With ``robust`` the first solve is an iteratively reweighted one (:func:`~..engine.variance.robust_adjustment`)
 and the ties it down-weights below ``robust_cut`` are removed before the snooping.
 
 Stochastic model: the σ of the tie observations is the matcher's guess (:mod:`seaice_jax.imagery.ties`), the σ of
 the control points is the user's (map accuracy and pointing). Once no tie is flagged, the variance factor of every
 group named in ``variance_groups`` (default: the ties) is estimated (Förstner/Helmert,
-:func:`~seaice_jax.adjust.variance.variance_components`), its σ rescaled, and the snooping resumed with the
+:func:`~seaice_jax.adjust.engine.variance.variance_components`), its σ rescaled, and the snooping resumed with the
 rescaled σ until both settle. The covariance reported is then Q of the rescaled problem, not σ̂0² Q: one global
 σ̂0 is the ties' factor (they hold nearly all the redundancy), and scaling by it the part of the covariance that the
 control points carry (the absolute geolocation) made the models' stated position σ 4.3 times too small when σ̂0 was
@@ -70,17 +70,16 @@ import numpy as np
 
 from seaice_jax._shapes import bucket, pad
 from seaice_jax.adjust import engine
-from seaice_jax.adjust.problem import Problem, ResidualBlock, linearize, weights
-from seaice_jax.adjust.quality import DEFAULT_ALPHA
-from seaice_jax.adjust.schur import normal_equations
-from seaice_jax.adjust.sequence_model import (
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock, linearize, weights
+from seaice_jax.adjust.engine.quality import DEFAULT_ALPHA
+from seaice_jax.adjust.engine.schur import normal_equations
+from seaice_jax.adjust.engine.variance import ROBUST, robust_adjustment, variance_components
+from seaice_jax.adjust.sequence.model import (
     UNKNOWNS_PER_IMAGE,
     SequenceObservations,
-    global_index,
     sequence_observations,
     unknown_names,
 )
-from seaice_jax.adjust.variance import ROBUST, robust_adjustment, variance_components
 from seaice_jax.errors import ComputationError, SeaiceError
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.sensors.control import ControlPoints
@@ -95,7 +94,7 @@ class SequenceOptions:
         batch: per round, the ties whose worst |w| is at least this fraction of the round's largest are removed
             (1: one tie per round, Baarda's strict snooping).
         max_rounds: of removal and re-adjustment.
-        robust: ``None`` or a weight function of :data:`~seaice_jax.adjust.variance.ROBUST` for the first solve.
+        robust: ``None`` or a weight function of :data:`~seaice_jax.adjust.engine.variance.ROBUST` for the first solve.
         robust_cut: ties with an observation down-weighted below this factor by the robust solve are removed.
         max_steps: of the engine's damped Gauss-Newton loop per solve.
         variance_groups: prefixes of the observation groups whose variance factors are estimated once no tie is
@@ -228,17 +227,18 @@ class SequenceAdjustment(eqx.Module):
         return self.adjustment.flagged(self.alpha)
 
 
-def _padded_block(group) -> ResidualBlock:
-    """The group as a residual block with its rows padded to a bucket size (copies of row 0 with σ = ∞: the
-    engine's padding, weight 0), so sequences of similar size share one compiled solve."""
-    size = bucket(group.rows)
-    extra = size - group.rows
-    data = jax.tree_util.tree_map(lambda leaf: jnp.concatenate([leaf, jnp.repeat(leaf[:1], extra, axis=0)]),
-                                  group.data)
-    sigma = jnp.concatenate([group.sigma, jnp.full((extra, group.sigma.shape[1]), jnp.inf)])
-    image = jnp.concatenate([group.image, jnp.repeat(group.image[:1], extra)])
-    tie = None if group.tie is None else jnp.concatenate([group.tie, jnp.repeat(group.tie[:1], extra)])
-    return ResidualBlock(group.function, data, sigma, global_index(image), tie)
+def _padded_block(block: ResidualBlock) -> ResidualBlock:
+    """The block with its rows padded to a bucket size (copies of row 0 with σ = ∞: the engine's padding, weight 0),
+    so sequences of similar size share one compiled solve."""
+    extra = bucket(block.rows) - block.rows
+
+    def padded(leaf):
+        return jnp.concatenate([leaf, jnp.repeat(leaf[:1], extra, axis=0)])
+
+    sigma = jnp.concatenate([block.sigma, jnp.full((extra, block.components), jnp.inf)])
+    point_index = None if block.point_index is None else padded(block.point_index)
+    return ResidualBlock(block.function, jax.tree_util.tree_map(padded, block.data), sigma,
+                         padded(block.global_index), point_index)
 
 
 def sequence_problem(observations: SequenceObservations) -> Problem:
@@ -262,14 +262,7 @@ def _without(problem: Problem, removed: np.ndarray) -> Problem:
 def _worst_ties(problem: Problem, result: engine.Adjustment, alpha: float, batch: float) -> list[int]:
     """Ties whose worst flagged observation has |w| ≥ ``batch`` times the largest flagged tie |w|, worst first."""
     tie_groups = [n for n, b in problem.blocks.items() if b.point_index is not None]
-    worst: dict[int, float] = {}
-    for flag in result.flagged(alpha, tie_groups):
-        tie = int(problem.blocks[flag.group].point_index[flag.row])
-        worst[tie] = max(worst.get(tie, 0.0), abs(flag.w))
-    if not worst:
-        return []
-    largest = max(worst.values())
-    return [t for t, w in sorted(worst.items(), key=lambda item: -item[1]) if w >= batch * largest]
+    return result.worst(lambda flag: int(problem.blocks[flag.group].point_index[flag.row]), alpha, batch, tie_groups)
 
 
 _linearize = eqx.filter_jit(linearize)
@@ -471,7 +464,7 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
         ties: :class:`~seaice_jax.imagery.ties.TiePoints` (or any table with its fields), ``None``: none.
         controls: per image its :class:`ControlPoints` or ``None``.
         prior_mean, prior_covariance: per-image priors of the unknowns (``(n, 5)`` and ``(n, 5, 5)`` or σ
-            ``(n, 5)``; see :func:`~seaice_jax.adjust.sequence_model.sequence_observations`); ``None``: none.
+            ``(n, 5)``; see :func:`~seaice_jax.adjust.sequence.model.sequence_observations`); ``None``: none.
         options: :class:`SequenceOptions`.
         image_names: for the names of the unknowns (default ``image<i>``).
 

@@ -17,7 +17,7 @@ beyond; a sweep's cost and code grow with their square).
 import jax
 import jax.numpy as jnp
 
-from seaice_jax.adjust.problem import Problem
+from seaice_jax.adjust.engine.problem import Problem
 
 RANK_TOLERANCE = 1e-12
 """Relative singular value of the column-scaled Jacobian below which a direction counts as undetermined: about

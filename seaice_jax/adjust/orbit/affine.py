@@ -156,7 +156,7 @@ def affine_touch_up(fit, n_terms: int | None = None) -> AffinePolynomial:
     11). Apply it as ``fit.model.forward(*correction(pixel, scan))``; trust it only inside :func:`trust_region`.
 
     Args:
-        fit: an :class:`~seaice_jax.adjust.orbit_fit.OrbitFit`.
+        fit: an :class:`~seaice_jax.adjust.orbit.fit.OrbitFit`.
     """
     control = fit.control
     pixel, scan = fit.model.inverse(control.latitude, control.longitude)

@@ -27,12 +27,12 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, PyTree
 
-from seaice_jax.adjust import dense, engine
-from seaice_jax.adjust.dense import RANK_TOLERANCE
-from seaice_jax.adjust.engine import Adjustment, EngineOptions
-from seaice_jax.adjust.problem import Problem, ResidualBlock, linearize_all
+from seaice_jax._shapes import is_traced
+from seaice_jax.adjust.engine import dense, gauss_newton
+from seaice_jax.adjust.engine.dense import RANK_TOLERANCE
+from seaice_jax.adjust.engine.gauss_newton import Adjustment, EngineOptions
+from seaice_jax.adjust.engine.problem import Problem, ResidualBlock, linearize_all
 from seaice_jax.errors import RankDeficiencyError, SeaiceError
-from seaice_jax.geometry._checks import is_traced
 
 __all__ = ["Adjustment", "Observations", "Solver", "checked_solve", "least_squares", "make_solver",
            "undetermined_parameters"]
@@ -139,7 +139,7 @@ class Solver(eqx.Module):
         return int(self._dof)
 
     def problem(self, observed, args=None, start=None) -> Problem:
-        """The engine's :class:`~seaice_jax.adjust.problem.Problem` for these observed values."""
+        """The engine's :class:`~seaice_jax.adjust.engine.problem.Problem` for these observed values."""
         observed = jnp.concatenate([jnp.reshape(jnp.asarray(observed[g], float), -1) for g in self._groups])
         sigma = jnp.concatenate([jnp.reshape(self._sigmas[g], -1) for g in self._groups])
         x = self.start if start is None else self.flatten(start)
@@ -167,7 +167,7 @@ class Solver(eqx.Module):
                                                                          degrees_of_freedom=self.degrees_of_freedom)
 
     def _run(self, observed, args, start) -> Adjustment:
-        result = engine.solve(self.problem(observed, args, start), self._options, self.parameter_names,
+        result = gauss_newton.solve(self.problem(observed, args, start), self._options, self.parameter_names,
                               layout=None, dof=self._dof)
         return self._by_group(result)
 
@@ -247,12 +247,12 @@ def make_solver(
         prior_value: the prior values (default: ``parameters``).
         max_steps: iterations of the engine's loop. tolerance: relative and absolute, on the step.
         decrease_tolerance: or converged when the Gauss-Newton step is below this many a posteriori standard
-            deviations (:class:`~seaice_jax.adjust.engine.EngineOptions`; default ``tolerance``).
+            deviations (:class:`~seaice_jax.adjust.gauss_newton.EngineOptions`; default ``tolerance``).
         strategy: ``"damped"`` (the default here: from a start near the answer, as a vmapped batch of
             realizations has, plain Gauss-Newton steps until one fails, the fewest iterations) or
             ``"trust-region"`` (the default of :func:`least_squares`: far starts too;
-            :class:`~seaice_jax.adjust.engine.EngineOptions`).
-        factorization: the dense backend's (:class:`~seaice_jax.adjust.engine.EngineOptions`): ``"jacobi"`` for a
+            :class:`~seaice_jax.adjust.gauss_newton.EngineOptions`).
+        factorization: the dense backend's (:class:`~seaice_jax.adjust.gauss_newton.EngineOptions`): ``"jacobi"`` for a
             solver to be vmapped over many problems of a few unknowns.
         args: model arguments for diagnosing a problem with fewer observations than unknowns (the
             :class:`RankDeficiencyError` then names the undetermined parameters).
@@ -372,6 +372,6 @@ def checked_solve(solver: Solver, observed, args=None, start=None, throw: bool =
         raise RankDeficiencyError(f"rank-deficient adjustment at the solution: the observations cannot determine "
                                   f"{', '.join(undetermined)}", undetermined)
     if throw and not bool(result.converged):
-        raise engine.not_converged_error(result, "the least-squares fit", "raise max_steps, start closer to the "
+        raise gauss_newton.not_converged_error(result, "the least-squares fit", "raise max_steps, start closer to the "
                                          "answer, or pass throw=False to get the unconverged fit")
     return result

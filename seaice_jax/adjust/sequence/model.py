@@ -4,7 +4,7 @@ Schur-complement least-squares backend (issue 13, «the simultaneous method»).
 
 Unknowns:
   * θ ``(n_images, 5)``: per image the five unknowns of :class:`~seaice_jax.geometry.scan.ScanModel` in the order
-    of :data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS` (as :mod:`seaice_jax.adjust.orbit_fit` fits them; radians
+    of :data:`~seaice_jax.geometry.scan.SCAN_UNKNOWNS` (as :mod:`seaice_jax.adjust.orbit.fit` fits them; radians
     and one pixel); flattened row-major, image ``i``'s unknown ``j`` is θ_flat[5 i + j] (:func:`global_index`);
   * points ``(n_ties, 2)``: per tie, ``(north, east)`` metres from the tie's reference position (φ0, λ0) on the
     model sphere: φ = φ0 + north/R, λ = λ0 + east/(R cos φ0) (:func:`tie_ground`). The chart is exact (an
@@ -17,13 +17,13 @@ group's ``data`` at one row):
     ``i``; computed by the inverse scan model of the tie's ground position, σ the pointing σ in pixels. The
     residual lives in image space because the inverse is closed form (up to the Earth-rotation fixed point, which
     contracts by T_s/T_e ≈ 0.07 a step: 8 steps are exact to 1e-9 and so are their derivatives), so unlike the
-    radar block (:mod:`seaice_jax.adjust.block`, whose inverse needs a zero-Doppler search and whose residuals are
+    radar block (:mod:`seaice_jax.adjust.radar.block`, whose inverse needs a zero-Doppler search and whose residuals are
     therefore formed on the ground and whitened by the image Jacobian) nothing is approximated: the whitened
     residuals are the image residuals in units of their σ, and a w-test names the pixel or the scan line at fault;
   * **control** (``"control <direction> <n_pixels>x<n_scans>"``): a control point measured at ``(pixel, scan)``
     with known position and ground σ (:class:`~seaice_jax.sensors.control.ControlPoints`: map accuracy and
     pointing combined, metres); computed − known position as ``(north, east)`` metres on the sphere, exactly the
-    observation :func:`~seaice_jax.adjust.orbit_fit.fit_scan_model` fits, so the simultaneous adjustment and the
+    observation :func:`~seaice_jax.adjust.orbit.fit.fit_scan_model` fits, so the simultaneous adjustment and the
     per-image baseline weigh control points alike; no point unknowns;
   * **prior** (``"prior"``): per image, L⁻¹ (θ_i − θ̄_i) with L the Cholesky factor of the prior covariance (σ = 1:
     already whitened); the node difference is wrapped to (−π, π].
@@ -40,8 +40,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int, PyTree
+from jaxtyping import Array, Float, Int
 
+from seaice_jax.adjust.engine import ResidualBlock
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import wrap_angle
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
@@ -115,33 +116,12 @@ def control_function(direction: str, n_pixels: int, n_scans: int) -> Callable:
     return functools.partial(_control_residual, direction, n_pixels, n_scans)
 
 
-class ObservationGroup(eqx.Module):
-    """``m`` rows of ``c`` components sharing one residual function.
-
-    Attributes:
-        function: ``function(theta (5,), point (d,), row) -> (c,)`` computed − observed (observation units).
-        data: pytree of arrays with leading axis ``m`` (observed values, the image's orbit, tie references).
-        sigma: ``(m, c)`` a priori σ in observation units.
-        image: ``(m,)`` the image each row belongs to (:func:`global_index` gives its unknowns).
-        tie: ``(m,)`` the tie (point) each row touches, or ``None``.
-    """
-
-    function: Callable = eqx.field(static=True)
-    data: PyTree
-    sigma: Float[Array, "m c"]
-    image: Int[Array, " m"]
-    tie: Int[Array, " m"] | None = None
-
-    @property
-    def rows(self) -> int:
-        return int(self.sigma.shape[0])
-
-
 class SequenceObservations(eqx.Module):
     """Everything observed on a sequence, with the starting values of the unknowns.
 
     Attributes:
-        groups: ``{name: ObservationGroup}``.
+        groups: ``{name: ResidualBlock}`` (the engine's residual blocks, rows not padded; image ``i``'s unknowns are
+            θ_flat[5 i: 5 i + 5], tie ``t`` is point ``t``).
         start: ``(n_images, 5)`` starting θ (the current models). models: the current :class:`ScanModel` per
             image (their orbits, directions and sizes are fixed; :meth:`models_at` puts θ into them).
         reference: ``(n_ties, 2)`` φ0, λ0 radians of each tie's chart (:func:`tie_ground`); the tie unknowns start
@@ -208,7 +188,7 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
     if n_images == 0:
         raise SeaiceError("a sequence needs at least one image")
     start = jnp.stack([scan_unknowns(m) for m in models])
-    groups: dict[str, ObservationGroup] = {}
+    groups: dict[str, ResidualBlock] = {}
     layouts = _layouts(models)
     reference = jnp.zeros((0, 2))
     reference_image = np.zeros(0, int)
@@ -231,9 +211,9 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
             data = {"pixel": jnp.asarray(np.asarray(ties.pixel, float)[rows]),
                     "scan": jnp.asarray(np.asarray(ties.scan, float)[rows]),
                     "orbit": _row_orbits(models, image[rows]), "reference": reference[tie[rows]]}
-            groups[f"ties {direction} {n_pixels}x{n_scans}"] = ObservationGroup(
+            groups[f"ties {direction} {n_pixels}x{n_scans}"] = ResidualBlock(
                 tie_function(direction, n_pixels, n_scans), data, jnp.asarray(sigma[rows]),
-                jnp.asarray(image[rows]), jnp.asarray(tie[rows]))
+                global_index(image[rows]), jnp.asarray(tie[rows]))
     controls = list(controls)
     if len(controls) > n_images:
         raise SeaiceError(f"{len(controls)} control-point sets for {n_images} images")
@@ -247,8 +227,8 @@ def sequence_observations(models: Sequence[ScanModel], ties=None, controls: Sequ
                 for key in ("pixel", "scan", "latitude", "longitude")}
         data["orbit"] = _row_orbits(models, image)
         sigma = jnp.concatenate([c.sigma for _, c in present])
-        groups[f"control {direction} {n_pixels}x{n_scans}"] = ObservationGroup(
-            control_function(direction, n_pixels, n_scans), data, jnp.stack([sigma, sigma], 1), jnp.asarray(image))
+        groups[f"control {direction} {n_pixels}x{n_scans}"] = ResidualBlock(
+            control_function(direction, n_pixels, n_scans), data, jnp.stack([sigma, sigma], 1), global_index(image))
     if prior_covariance is not None:
         groups["prior"] = _prior_group(start if prior_mean is None else jnp.asarray(prior_mean, float),
                                        jnp.asarray(prior_covariance, float), n_images)
@@ -269,7 +249,7 @@ def _reference_images(ties, image, tie, n_ties) -> np.ndarray:
     return out
 
 
-def _prior_group(mean, covariance, n_images) -> ObservationGroup:
+def _prior_group(mean, covariance, n_images) -> ResidualBlock:
     if covariance.shape == (n_images, UNKNOWNS_PER_IMAGE):
         covariance = jax.vmap(jnp.diag)(covariance**2)
     size = UNKNOWNS_PER_IMAGE
@@ -284,42 +264,8 @@ def _prior_group(mean, covariance, n_images) -> ObservationGroup:
             raise SeaiceError(f"prior of image {i}: covariance is not positive definite") from None
     whitening = jnp.asarray(np.stack(whitening))
     data = {"mean": mean, "whitening": whitening}
-    return ObservationGroup(_prior_residual, data, jnp.ones((n_images, UNKNOWNS_PER_IMAGE)),
-                            jnp.arange(n_images))
-
-
-def _row_points(group: ObservationGroup, points):
-    if group.tie is None:
-        return jnp.zeros((group.rows, 0))
-    return jnp.asarray(points)[group.tie]
-
-
-@eqx.filter_jit
-def group_residuals(group: ObservationGroup, theta, points):
-    """``(m, c)`` whitened residuals (computed − observed)/σ of one group at ``theta (n_images, 5)`` and ``points
-    (n_ties, 2)``."""
-    theta = jnp.asarray(theta)
-    values = jax.vmap(group.function)(theta[group.image], _row_points(group, points), group.data)
-    return values / group.sigma
-
-
-@eqx.filter_jit
-def group_jacobians(group: ObservationGroup, theta, points):
-    """Whitened residuals ``(m, c)`` and their Jacobians per row: ``(m, c, 5)`` with respect to the row's image
-    unknowns and ``(m, c, d)`` with respect to its tie (``d = 0`` without ties), by ``vmap(jacfwd)``."""
-    theta = jnp.asarray(theta)
-
-    def value_and_jacobian(t, p, row):
-        return group.function(t, p, row), jax.jacfwd(group.function, argnums=(0, 1))(t, p, row)
-
-    values, (j_theta, j_point) = jax.vmap(value_and_jacobian)(theta[group.image], _row_points(group, points),
-                                                              group.data)
-    return values / group.sigma, j_theta / group.sigma[..., None], j_point / group.sigma[..., None]
-
-
-def sequence_residuals(observations: SequenceObservations, theta, points) -> dict:
-    """``{group name: (m, c) whitened residuals}``."""
-    return {name: group_residuals(g, theta, points) for name, g in observations.groups.items()}
+    return ResidualBlock(_prior_residual, data, jnp.ones((n_images, UNKNOWNS_PER_IMAGE)),
+                         global_index(np.arange(n_images)))
 
 
 def unknown_names(observations: SequenceObservations, names: Sequence[str] | None = None) -> list[str]:

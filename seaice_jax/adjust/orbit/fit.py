@@ -3,7 +3,7 @@
 Two methods:
 
 * ``"gauss-newton"`` (default): the five unknowns of :class:`~seaice_jax.geometry.scan.ScanModel` estimated by
-  the weighted least-squares engine (:mod:`seaice_jax.adjust.lsq`), minimising the squared ground distances at the
+  the weighted least-squares engine (:mod:`..engine.lsq`), minimising the squared ground distances at the
   control points (in latitude and longitude, each weighted by the point's σ in metres), with covariance and quality
   control. No starting values are needed: :func:`initial_guess` scans the ascending node and, for each node, fits
   the orbital and scanner angles of the control points by linear least squares.
@@ -23,9 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import pad, padded_to_bucket
-from seaice_jax.adjust.appendix_c import appendix_c_search
-from seaice_jax.adjust.lsq import Adjustment, Observations, Solver, least_squares, make_solver
-from seaice_jax.adjust.quality import DEFAULT_ALPHA, critical_value
+from seaice_jax.adjust.engine.lsq import Adjustment, Observations, Solver, least_squares, make_solver
+from seaice_jax.adjust.engine.quality import DEFAULT_ALPHA
+from seaice_jax.adjust.orbit.appendix_c import appendix_c_search
 from seaice_jax.errors import ComputationError, RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.earth import wrap_angle as _wrap
@@ -46,7 +46,6 @@ FLAG_ARCMIN = 3.0
 """Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
 
 _distance = jax.jit(great_circle_distance)
-_critical_value = jax.jit(critical_value)
 """Compiled once each (eager, their operations would each compile on their own)."""
 
 
@@ -118,7 +117,7 @@ def _unpadded(adjustment: Adjustment, count: int) -> Adjustment:
 
 def orbit_solver(control: ControlPoints, start: ScanModel, factorization: str = "jacobi",
                  decrease_tolerance: float = DECREASE_TOLERANCE) -> Solver:
-    """A pure, jit/vmap-able :class:`~seaice_jax.adjust.lsq.Solver` for this image's control-point layout.
+    """A pure, jit/vmap-able :class:`~seaice_jax.adjust.engine.lsq.Solver` for this image's control-point layout.
 
     Call it as ``solver({"latitude": lat, "longitude": lon}, args=control_args(control))``; the σ and image
     positions are fixed, the known positions vary (Monte Carlo). ``factorization``: the engine's
@@ -289,9 +288,11 @@ class OrbitFit:
 
     def flagged_w_test(self, alpha=DEFAULT_ALPHA):
         """Stations whose latitude or longitude w-statistic exceeds the critical value (data snooping)."""
-        w_lat, w_lon = self.w_statistics()
-        limit = float(_critical_value(alpha))
-        return (np.abs(w_lat) > limit) | (np.abs(w_lon) > limit)
+        flagged = np.zeros(len(self.control), bool)
+        if self.adjustment is not None:
+            flagged[[flag.row for flag in self.adjustment.flagged(alpha, ("latitude", "longitude"))
+                     if flag.row < flagged.size]] = True
+        return flagged
 
 
 LINE_TOLERANCE = 0.5
@@ -341,7 +342,7 @@ def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "au
             fails — a start past the horizon, no convergence — is left out, and the error is raised only if both fail).
         method: ``"gauss-newton"`` or ``"appendix_c"``.
         search_options: for ``"appendix_c"``, the operator's entries (``start_subtrack``, ``search_span``,
-            ``initial_spans``, ``f_gamma``, ``f_beta``; see :func:`~seaice_jax.adjust.appendix_c.appendix_c_search`).
+            ``initial_spans``, ``f_gamma``, ``f_beta``; see :func:`~.appendix_c.appendix_c_search`).
 
     Raises:
         RankDeficiencyError: naming the unknowns the control points cannot determine (too few, collinear).
