@@ -35,6 +35,7 @@ from seaice_jax.imagery.tracking import (
 # ---------------------------------------------------------------------------------------------- GeoTIFF
 
 _MODEL_PIXEL_SCALE, _MODEL_TIEPOINT, _GEO_KEYS, _GEO_DOUBLES, _GEO_ASCII = 33550, 33922, 34735, 34736, 34737
+_GDAL_METADATA = 42112
 _USER_DEFINED = 32767
 
 # GeoTIFF 1.1 coordinate transformation code and (GeoKey, PROJ parameter, default) of each projection kind written
@@ -77,18 +78,53 @@ def _user_defined_keys(grid: MapGrid, path) -> tuple[list, list]:
     return sorted(keys), doubles
 
 
-def write_geotiff(path: str | os.PathLike, image, grid: MapGrid, description: str = "") -> Path:
+ACQUISITION_TIME = "ACQUISITION_TIME"
+"""The GDAL metadata item (``rasterio``'s ``tags()``, ``gdalinfo``'s Metadata) holding a GeoTIFF's acquisition time,
+ISO 8601 UTC."""
+
+
+def _iso(moment) -> str:
+    """ISO 8601 UTC of an aware datetime, with its sub-second digits when it has any."""
+    return moment.isoformat(timespec="microseconds" if moment.microsecond else "seconds").replace("+00:00", "Z")
+
+
+def _acquisition_time(time: str, path) -> tuple[str, str]:
+    """``(TIFF DateTime "YYYY:MM:DD HH:MM:SS", ISO 8601 UTC)`` of an ISO 8601 time; sub-second digits are kept in the
+    ISO form only (the TIFF tag has whole seconds)."""
+    from seaice_jax.timefmt import parse_time
+
+    try:
+        moment = parse_time(time)
+    except (ValueError, AttributeError):
+        raise SeaiceError(f"{path}: acquisition time {time!r} is not an ISO 8601 date-time") from None
+    return moment.strftime("%Y:%m:%d %H:%M:%S"), _iso(moment)
+
+
+def write_geotiff(path: str | os.PathLike, image, grid: MapGrid, description: str = "",
+                  time: str | None = None) -> Path:
     """Write a remapped image ``(n_rows, n_columns)`` (float32, NaN = no data) as a GeoTIFF of ``grid``.
 
     Georeferencing: ModelPixelScale and ModelTiepoint (pixel-is-area, the top-left corner), GeoKeys with the
     EPSG code of the NSIDC grids or, for other projections, a user-defined projected system (ellipsoid, coordinate
     transformation and its parameters, read as such by GDAL) whose citation is the PROJ string.
+
+    Args:
+        description: the TIFF ImageDescription (GDAL: ``TIFFTAG_IMAGEDESCRIPTION``).
+        time: the image's acquisition time, ISO 8601 (UTC unless an offset is given): written as the TIFF
+            DateTime tag (whole seconds, UTC; GDAL: ``TIFFTAG_DATETIME``, what :func:`read_geotiff` and ``seaice
+            track`` read from GeoTIFFs made by other tools) and in full as the GDAL metadata item
+            :data:`ACQUISITION_TIME`. ``None``: neither.
+
+    Raises:
+        SeaiceError: naming the file, for an image not of the grid's shape, a time that is not ISO 8601, or a
+            projection GeoTIFF cannot describe.
     """
     import tifffile
 
     image = np.asarray(image, np.float32)
     if image.shape != grid.shape:
         raise SeaiceError(f"{path}: image shape {image.shape} is not the grid's {grid.shape}")
+    stamp, iso = _acquisition_time(time, path) if time is not None else (None, None)
     width, height = float(grid.pixel_width), float(grid.pixel_height)
     left, top = float(grid.x_first) - 0.5 * width, float(grid.y_first) + 0.5 * height
     code = grid.projection.epsg_code()
@@ -105,11 +141,14 @@ def write_geotiff(path: str | os.PathLike, image, grid: MapGrid, description: st
                  (_MODEL_TIEPOINT, "d", 6, (0.0, 0.0, 0.0, left, top, 0.0), False),
                  (_GEO_KEYS, "H", len(directory), directory, False),
                  (42113, "s", 0, "nan", False)]  # GDAL_NODATA
+    if iso is not None:
+        extratags.append((_GDAL_METADATA, "s", 0, f'<GDALMetadata>\n  <Item name="{ACQUISITION_TIME}">{iso}</Item>\n'
+                                                   "</GDALMetadata>", False))
     if code is None:
         extratags += [(_GEO_DOUBLES, "d", len(doubles), tuple(doubles), False),
                       (_GEO_ASCII, "s", 0, citation, False)]
     with atomic_path(path) as temporary:
-        tifffile.imwrite(temporary, image, description=description or None, extratags=extratags,
+        tifffile.imwrite(temporary, image, description=description or None, datetime=stamp, extratags=extratags,
                          metadata=None)
     return Path(path)
 
@@ -122,13 +161,30 @@ def _tiff_time(text: str | None) -> str | None:
     return f"{date.replace(':', '-')}T{clock or '00:00:00'}Z"
 
 
+def _geotiff_time(tags: dict) -> str | None:
+    """The acquisition time (ISO 8601 UTC) of a GeoTIFF's GDAL tags: :data:`ACQUISITION_TIME` when it is an ISO 8601
+    date-time, else the TIFF ``DateTime`` tag, else None."""
+    from seaice_jax.timefmt import parse_time
+
+    text = tags.get(ACQUISITION_TIME)
+    if text:
+        try:
+            moment = parse_time(text)
+        except ValueError:
+            pass
+        else:
+            return _iso(moment)
+    return _tiff_time(tags.get("TIFFTAG_DATETIME"))
+
+
 def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, MapGrid, str | None]:
     """A single-band GeoTIFF made by any tool (GDAL, rasterio, QGIS, ``seaice remap``), read with rasterio.
 
     Returns:
         ``(values, grid, time)``: ``(n_rows, n_columns)`` float64 (NaN where no data), the :class:`MapGrid` of its
-        CRS (:func:`~seaice_jax.geometry.crs.projection_from_definition`) and geotransform, and its TIFF
-        ``DateTime`` tag as ISO 8601 UTC (None without one).
+        CRS (:func:`~seaice_jax.geometry.crs.projection_from_definition`) and geotransform, and its acquisition
+        time as ISO 8601 UTC: the GDAL metadata item :data:`ACQUISITION_TIME` (what :func:`write_geotiff` writes),
+        else the TIFF ``DateTime`` tag (None without either).
 
     Raises:
         SeaiceError: naming the file, when it is missing, not a GeoTIFF, has no projected CRS in metres, or is
@@ -174,7 +230,7 @@ def read_geotiff(path: str | os.PathLike) -> tuple[np.ndarray, MapGrid, str | No
         values[values == nodata] = np.nan
     grid = MapGrid(projection, transform.c + 0.5 * transform.a, transform.f + 0.5 * transform.e, transform.a,
                    -transform.e, values.shape[0], values.shape[1])
-    return values, grid, _tiff_time(tags.get("TIFFTAG_DATETIME"))
+    return values, grid, _geotiff_time(tags)
 
 
 # --------------------------------------------------------------------------------------------- NetCDF

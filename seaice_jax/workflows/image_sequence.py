@@ -391,7 +391,8 @@ def geotiff_stack(paths, times=None) -> RemappedStack:
 
     Args:
         paths: two or more GeoTIFF files, in time order. times: their ISO 8601 UTC times (default: each file's
-            TIFF ``DateTime`` tag).
+            acquisition time, :func:`~seaice_jax.io.products.read_geotiff`: the ``ACQUISITION_TIME`` item the
+            package writes, else the TIFF ``DateTime`` tag).
 
     Raises:
         SeaiceError: naming the file whose grid (CRS, geotransform, shape) differs from the first's, or whose time
@@ -444,13 +445,13 @@ def write_rectification(path: Path, rectifications) -> list[Path]:
 
 def write_remapped(stack: RemappedStack, rectifications, out_dir: str | os.PathLike,
                    progress: bool = False) -> tuple[Path, ...]:
-    """``<image>.tif`` (GeoTIFF), ``remapped.npz``, ``rectification.csv`` (control-point deviations per image, as
-    the 1985 VHR2 printout) and ``remapped.png``."""
+    """``<image>.tif`` (GeoTIFF, the image's time as its acquisition time), ``remapped.npz``, ``rectification.csv``
+    (control-point deviations per image, as the 1985 VHR2 printout) and ``remapped.png``."""
     out = Path(out_dir)
     labels = [time_after(stack.epoch, t) for t in stack.times]
-    files = [write_geotiff(out / f"{name}.tif", values, stack.grid, f"{name} {label}") for name, values, label in
-             tqdm(list(zip(stack.names, stack.values, labels, strict=True)), desc="write GeoTIFF",
-                  disable=not progress, leave=False)]
+    files = [write_geotiff(out / f"{name}.tif", values, stack.grid, f"{name} {label}", time=label)
+             for name, values, label in tqdm(list(zip(stack.names, stack.values, labels, strict=True)),
+                                             desc="write GeoTIFF", disable=not progress, leave=False)]
     files.append(save_stack(out / "remapped.npz", stack))
     files += write_rectification(out / "rectification.csv", rectifications)
     files.append(write_overview(out / "remapped.png", stack.names, stack.times, stack.epoch, stack.grid,
