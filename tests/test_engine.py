@@ -11,7 +11,7 @@ from seaice_jax.adjust.engine.lsq import Observations, make_solver
 from seaice_jax.adjust.engine.problem import Problem, ResidualBlock
 from seaice_jax.adjust.engine.quality import critical_value
 from seaice_jax.adjust.engine.variance import robust_adjustment, variance_components
-from seaice_jax.errors import SeaiceError
+from seaice_jax.errors import NotConvergedError, SeaiceError
 
 
 def _image_point(theta, point, row):
@@ -283,6 +283,30 @@ def test_a_minimum_at_infinity_is_refused_naming_the_parameter(strategy):
                    EngineOptions("dense", max_steps=500, strategy=strategy), ("b1", "b2"))
     assert result.undetermined_parameters() == ["b2"]
     assert float(result.parameters["theta"][0]) == pytest.approx(np.mean(200.0 - x), rel=1e-9)
+
+
+def test_the_result_code_says_how_a_solve_ended_and_an_unconverged_solve_raises():
+    """Converged, stopped at max_steps, or a residual that is not finite: the result code tells them apart (also per
+    lane under vmap); an eager solve that did not converge raises unless the caller passes throw=False."""
+    x = np.arange(1.0, 11.0)
+
+    def problem(y):
+        block = ResidualBlock(_saturating, {"x": jnp.asarray(x), "y": jnp.asarray(y)}, jnp.ones((10, 1)),
+                              jnp.broadcast_to(jnp.arange(2), (10, 2)))
+        return Problem({"y": block}, jnp.array([1.0, 0.1]))
+
+    rising = 50.0 * (1.0 - np.exp(-0.3 * x))
+    done = solve(problem(rising), EngineOptions("dense"), ("b1", "b2"))
+    assert bool(done.converged) and done.result_name == "successful"
+    with pytest.raises(NotConvergedError, match="max_steps_reached"):
+        solve(problem(rising), EngineOptions("dense", max_steps=1), ("b1", "b2"))
+    stopped = solve(problem(rising), EngineOptions("dense", max_steps=1), ("b1", "b2"), throw=False)
+    assert not bool(stopped.converged) and stopped.result_name == "max_steps_reached"
+    broken = solve(problem(np.where(x == 3, np.nan, rising)), EngineOptions("dense"), ("b1", "b2"), throw=False)
+    assert broken.result_name == "nonfinite"
+    lanes = jax.vmap(lambda y: solve(problem(y), EngineOptions("dense"), ("b1", "b2"), dof=8))(
+        jnp.stack([rising, np.where(x == 3, np.nan, rising)]))
+    assert np.asarray(lanes.result).tolist() == [0, 2]
 
 
 def test_the_trust_region_reaches_the_damped_loops_minimum_in_as_few_steps(rng):

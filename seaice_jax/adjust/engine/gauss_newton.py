@@ -45,6 +45,9 @@ from seaice_jax.adjust.engine.quality import (
 from seaice_jax.errors import NotConvergedError, SeaiceError
 
 BACKENDS = ("dense", "schur")
+RESULTS = ("successful", "max_steps_reached", "nonfinite")
+"""How a solve ended (``Adjustment.result`` indexes this): converged; stopped at ``max_steps``; a square sum that is
+not finite (NaN or ∞ residuals at the start, or no finite trial left)."""
 FACTORIZATIONS = dense.FACTORIZATIONS
 STRATEGIES = ("damped", "trust-region")
 MAX_DAMPING = 1e12
@@ -164,7 +167,8 @@ class Adjustment(eqx.Module):
             −v/r).
         w_correlation, w_partner: ``{group: …}`` the largest |correlation| of each w with another observation's
             and that observation's flat index (−1: none).
-        steps, converged: of the nonlinear loop.
+        steps, converged: of the nonlinear loop. result: how it ended, an index into :data:`RESULTS` (traceable:
+            under ``vmap`` one per lane); :attr:`result_name` names it.
         last_step: ``(n,)`` the last step the loop computed for the global unknowns (taken, or pending when the loop
             stopped): below the tolerances at convergence by the step test; of an unconverged solve, how far from
             converged it stopped (:func:`not_converged_error`).
@@ -187,6 +191,7 @@ class Adjustment(eqx.Module):
     standardized_residuals: dict
     steps: Array
     converged: Bool[Array, ""]
+    result: Array
     point_cofactor: Array | None = None
     point_pair_cofactor: Array | None = None
     minimal_detectable_bias: dict | None = None
@@ -197,6 +202,11 @@ class Adjustment(eqx.Module):
     last_step: Array | None = None
     variance_components: dict | None = None
     robust_weights: dict | None = None
+
+    @property
+    def result_name(self) -> str:
+        """The name in :data:`RESULTS` of how the solve ended (eager use, one solve)."""
+        return RESULTS[int(self.result)]
 
     def standard_deviations(self, a_priori: bool = False) -> dict[str, Array]:
         """``{parameter name: σ}`` from ``covariance`` (or from ``cofactor`` with ``a_priori=True``)."""
@@ -560,13 +570,14 @@ def _solve(problem: Problem, layout, cross_points, options: EngineOptions, dof):
         parameters={"theta": theta, "points": points}, parameter_names=(), cofactor=cofactor,
         covariance=sigma0_squared * cofactor, sigma0=jnp.sqrt(sigma0_squared), degrees_of_freedom=0,
         residuals=out["v"], redundancy=out["r"], standardized_residuals=out["w"], steps=steps, converged=converged,
+        result=jnp.where(converged, 0, jnp.where(jnp.isfinite(square), 1, 2)),
         point_cofactor=point_cofactor, point_pair_cofactor=cross, minimal_detectable_bias=out["mdb"],
         estimated_errors=out["error"], w_correlation=correlations, w_partner=partners, undetermined=undetermined,
         last_step=last_step)
 
 
 def solve(problem: Problem, options: EngineOptions | None = None, names=(), cross_points=None, layout=None,
-          dof: int | Array | None = None) -> Adjustment:
+          dof: int | Array | None = None, throw: bool = True) -> Adjustment:
     """Adjust ``problem`` (eager or under ``jit``/``vmap`` with ``layout`` and ``dof`` given).
 
     Args:
@@ -578,6 +589,12 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
             ``None`` (that needs concrete point indices: build it outside ``vmap``).
         dof: degrees of freedom (counted here if ``None``, which needs concrete σ); traced, it leaves the result's
             ``degrees_of_freedom`` ``None``.
+        throw: raise :class:`~seaice_jax.errors.NotConvergedError` when the solve did not converge (eager use; under
+            ``jit``/``vmap`` nothing can be raised: read ``result``); ``False`` returns the unconverged result, for
+            callers that say themselves what did not converge.
+
+    Raises:
+        NotConvergedError: ``throw`` and the solve stopped unconverged (:func:`not_converged_error`).
     """
     options = options or EngineOptions()
     cross_points = np.zeros((0, 2), int) if cross_points is None else np.asarray(cross_points, int).reshape(-1, 2)
@@ -587,9 +604,13 @@ def solve(problem: Problem, options: EngineOptions | None = None, names=(), cros
     # padded to a bucket, so problems differing only in the number of requested pairs share one compile
     requested = pad(cross_points, bucket(cross_points.shape[0]), -1)
     result = _solve(problem, layout, jnp.asarray(requested), options, jnp.asarray(dof, float))
-    return dataclasses.replace(result, parameter_names=tuple(names),
-                               degrees_of_freedom=None if is_traced(dof) else int(dof),
-                               point_pair_cofactor=result.point_pair_cofactor[:cross_points.shape[0]])
+    result = dataclasses.replace(result, parameter_names=tuple(names),
+                                 degrees_of_freedom=None if is_traced(dof) else int(dof),
+                                 point_pair_cofactor=result.point_pair_cofactor[:cross_points.shape[0]])
+    if throw and not is_traced(result.converged) and not bool(result.converged):
+        raise not_converged_error(result, f"the adjustment ({RESULTS[int(result.result)]})",
+                                  "raise EngineOptions.max_steps, start closer, or pass throw=False to get the result")
+    return result
 
 
 def not_converged_error(result: Adjustment, what: str, advice: str = "") -> NotConvergedError:

@@ -168,7 +168,7 @@ class Solver(eqx.Module):
 
     def _run(self, observed, args, start) -> Adjustment:
         result = gauss_newton.solve(self.problem(observed, args, start), self._options, self.parameter_names,
-                              layout=None, dof=self._dof)
+                              layout=None, dof=self._dof, throw=False)
         return self._by_group(result)
 
     def _by_group(self, result: Adjustment) -> Adjustment:

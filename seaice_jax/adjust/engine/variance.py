@@ -85,14 +85,14 @@ def variance_components(problem: Problem, options=None, names=(), groups=None, s
     if shared:
         raise SeaiceError(f"pooled: {', '.join(map(repr, shared))} in more than one pool (one factor per block)")
     factors = {g: 1.0 for g in candidates}
-    first = result = gauss_newton.solve(problem, options, names, **solve_options)
+    first = result = gauss_newton.solve(problem, options, names, throw=False, **solve_options)
     chosen = [g for g in candidates if (groups is None and _sums(first, problem, g)[1] >= 1.0)
               or (groups is not None and (g[0] in groups or g in groups))]
     units = [unit for pool in pooled if (unit := [g for g in chosen if g[0] in pool])]
     units += [[g] for g in chosen if not any(g in unit for unit in units)]
     for _ in range(max_rounds):
         scaled = gauss_newton.rescaled(problem, _scale_arrays(problem, factors), result)
-        result = gauss_newton.solve(scaled, options, names, **solve_options)
+        result = gauss_newton.solve(scaled, options, names, throw=False, **solve_options)
         change = 0.0
         for unit in units:
             square, redundancy = np.sum([_sums(result, scaled, g) for g in unit], axis=0)
@@ -150,7 +150,7 @@ def robust_adjustment(problem: Problem, kind: str = "danish", options=None, name
     """
     groups = [n for n in problem.blocks if n != "prior"] if groups is None else list(groups)
     weights = {n: jnp.ones_like(problem.blocks[n].sigma) for n in groups}
-    result = gauss_newton.solve(problem, options, names, **solve_options)
+    result = gauss_newton.solve(problem, options, names, throw=False, **solve_options)
     for _ in range(max_rounds):
         new = {}
         for n in groups:
@@ -164,7 +164,7 @@ def robust_adjustment(problem: Problem, kind: str = "danish", options=None, name
         change = max(float(jnp.max(jnp.abs(new[n] - weights[n]))) for n in groups)
         weights = new
         scaled = gauss_newton.rescaled(problem, {n: 1.0 / jnp.sqrt(w) for n, w in weights.items()}, result)
-        result = gauss_newton.solve(scaled, options, names, **solve_options)
+        result = gauss_newton.solve(scaled, options, names, throw=False, **solve_options)
         if change < tolerance:
             break
     return eqx.tree_at(lambda r: r.robust_weights, result, weights, is_leaf=lambda x: x is None)

@@ -364,7 +364,7 @@ def simultaneous_block(coverages, plane, n_points: int, options: BlockOptions | 
     elif options.robust is not None:
         result = robust_adjustment(problem, options.robust, settings, names, groups=groups, **solve_options)
     else:
-        result = engine.solve(problem, settings, names, **solve_options)
+        result = engine.solve(problem, settings, names, throw=False, **solve_options)
     if solver == "schur" and not np.all(np.isfinite(np.asarray(result.cofactor))):
         raise SeaiceError("the Schur-complement solve broke down (the reduced normal matrix is not numerically "
                           "positive definite: the block is held only weakly, e.g. no control and no navigation "

@@ -501,7 +501,7 @@ def adjust_sequence(models: Sequence[ScanModel], ties, controls: Sequence[Contro
     settled = not estimated
     for _ in range(options.max_rounds):
         current = engine.rescaled(_without(problem, removed), {}, previous)
-        result = engine.solve(current, engine_options, names)
+        result = engine.solve(current, engine_options, names, throw=False)
         rounds += 1
         if not bool(result.converged):
             raise ComputationError(f"the sequence adjustment did not converge in {options.max_steps} steps "
