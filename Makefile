@@ -1,10 +1,10 @@
-# Two commands on a fresh machine with Python 3.11+ and make: `make demo` and `make test`.
+# Two commands on a fresh machine with Python 3.11+ and make: `make demo` and `make test` (and `make docs`).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-xla-defaults test-slow lint typecheck bench clean
+.PHONY: demo test test-xla-defaults test-slow lint typecheck bench docs clean
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "seaice_jax needs Python 3.11 or newer")'
@@ -50,5 +50,16 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_cli.py
 	$(PY) benchmarks/bench_memory.py
 
+# The documentation site (mkdocs.yml, docs/): built into site/ with every warning an error. Its tools (the `docs`
+# extra) are installed into .venv on first use.
+DOCS_STAMP := $(VENV)/.docs-installed
+
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test,docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+
 clean:
-	rm -rf seaice-demo .pytest_cache
+	rm -rf seaice-demo site .pytest_cache
