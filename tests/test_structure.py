@@ -1,19 +1,14 @@
-"""The package's shape: imports only go down the layers, no private name crosses a module, the README's module table
-lists exactly the modules in the tree, and every Python snippet of the README runs."""
+"""The package's shape: imports only go down the layers, no private name crosses a module, and the public face is
+literal, complete and cheap to import. (The module table and the documentation's snippets: tests/test_docs.py.)"""
 
 import ast
 import os
-import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "seaice_jax"
-README = ROOT / "README.md"
 
 LAYERS = {"geometry": 1, "sensors": 2, "adjust": 3, "imagery": 4, "drift": 4, "io": 5, "simulate": 5,
           "workflows": 6, "report": 6, "cli": 7}
@@ -145,68 +140,27 @@ def test_no_private_attribute_of_another_module():
     assert not problems, "\n".join(problems)
 
 
-def _module_table():
-    """The backquoted module paths in the first column of the README's module table."""
-    text = README.read_text()
-    section = text.split("## What is in it now", 1)[1].split("\n## ", 1)[0]
-    listed = []
-    for row in section.splitlines():
-        if row.startswith("| `"):
-            listed += re.findall(r"`([\w/]+\.py)`", row.split("|")[1])
-    return listed
-
-
-def test_readme_module_table_matches_the_tree():
-    """Every public module (not ``__init__``, not ``_private``) is listed exactly once, and nothing else."""
-    tree = sorted(str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
-                  if not p.name.startswith("_"))
-    listed = _module_table()
-    assert sorted(set(listed)) == sorted(listed), "listed twice: " + ", ".join(
-        sorted({m for m in listed if listed.count(m) > 1}))
-    assert not set(tree) - set(listed), "not in the README's module table: " + ", ".join(sorted(set(tree) -
-                                                                                             set(listed)))
-    assert not set(listed) - set(tree), "in the README's table but not in the tree: " + ", ".join(
-        sorted(set(listed) - set(tree)))
-
-
-def _snippets():
-    return re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
-
-
-def test_readme_has_snippets():
-    assert len(_snippets()) >= 3
-
-
-@pytest.mark.parametrize("index", range(len(_snippets())))
-def test_readme_snippet_runs(index, tmp_path):
-    """Each ```python block of the README runs on its own in a fresh interpreter (CPU), in an empty folder holding
-    a copy of ``examples/`` (the files the README's commands use)."""
-    source = _snippets()[index]
-    shutil.copytree(ROOT / "examples", tmp_path / "examples")
-    environment = {**os.environ, "JAX_PLATFORMS": "cpu", "MPLBACKEND": "Agg"}
-    result = subprocess.run([sys.executable, "-c", source], cwd=tmp_path, capture_output=True, text=True,
-                            timeout=600, env=environment)
-    assert result.returncode == 0, f"README snippet {index + 1} failed:\n{source}\n{result.stderr[-3000:]}"
-
-
-def test_public_face_is_written_once_complete_and_cheap():
-    """The public names are written once, as the type checker's imports in ``seaice_jax/__init__.py`` (plus the
-    errors): ``__all__`` and the lazy table are exactly those, in that order (errors last), with the user API in
-    it; every name resolves; importing the package loads neither OpenCV, matplotlib nor xarray."""
+def test_public_face_is_literal_complete_and_cheap():
+    """``seaice_jax.__all__`` is a literal list (static tools read it) whose every name resolves, with the user API
+    in it; importing the package loads neither OpenCV, matplotlib nor xarray."""
     tree = ast.parse((PACKAGE / "__init__.py").read_text())
-    checked = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
-    typed = [alias.name for node in checked.body if isinstance(node, ast.ImportFrom) for alias in node.names]
-    errors = [alias.name for node in tree.body
-              if isinstance(node, ast.ImportFrom) and node.module == "seaice_jax.errors" for alias in node.names]
-    import seaice_jax
-    names = list(seaice_jax.__all__)
-    assert names == typed + errors and len(names) == len(set(names))
-    assert list(seaice_jax._LAZY) == names
+    assignment = next(node for node in tree.body if isinstance(node, ast.Assign)
+                      and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets))
+    assert isinstance(assignment.value, ast.List)
+    names = [element.value for element in assignment.value.elts if isinstance(element, ast.Constant)]
+    assert len(names) == len(assignment.value.elts) == len(set(names))
     assert {"fit_scan_model", "remap", "track", "simultaneous_block", "BlockOptions", "least_squares",
             "Observations", "RankDeficiencyError", "GeometryError", "SeaiceError", "MapGrid", "Projection",
             "NavigationSpline", "Trajectory", "simulate_sequence", "nsidc_polar_stereographic"} <= set(names)
-    # readers first, errors last
-    assert names[0].startswith("read_") and names[-1].endswith("Error")
+    # the three spellings of the public face agree: the lazy table, the type checker's imports and __all__
+    import seaice_jax
+    checked = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
+    typed = {(node.module, alias.name) for node in ast.walk(checked) if isinstance(node, ast.ImportFrom)
+             for alias in node.names}
+    lazy = {(module, name) for module, names in seaice_jax._SOURCES.items() for name in names}
+    assert typed == lazy, typed ^ lazy
+    assert set(names) == {name for _, name in lazy} | {"SeaiceError", "GeometryError", "RankDeficiencyError",
+                                                       "NotConvergedError"}
     script = ("import sys, seaice_jax as sj\n"
               "heavy = [m for m in ('cv2', 'matplotlib', 'xarray') if m in sys.modules]\n"
               "assert not heavy, heavy\n"
