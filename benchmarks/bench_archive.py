@@ -31,7 +31,7 @@ from _common import publish  # noqa: E402
 from seaice_jax.io.sequence import write_sequence  # noqa: E402
 from seaice_jax.simulate.satellite import simulate_sequence  # noqa: E402
 from seaice_jax.timefmt import time_after  # noqa: E402
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID  # noqa: E402
+from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID  # noqa: E402
 
 
 def archive_project(root: Path, images: int, size: int, distinct: int = 4) -> Path:

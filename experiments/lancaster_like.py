@@ -35,7 +35,7 @@ from seaice_jax.geometry.projections import MapGrid  # noqa: E402
 from seaice_jax.imagery.remap import remap  # noqa: E402
 from seaice_jax.imagery.tracking import track  # noqa: E402
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement  # noqa: E402
-from seaice_jax.workflows.image_sequence import displacement_sigma  # noqa: E402
+from seaice_jax.workflows.track import displacement_sigma  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")
 POINTING = (0.5, 1.0)  # pixels: along the scan line (pixel), across (scan line)

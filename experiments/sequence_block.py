@@ -69,7 +69,7 @@ from seaice_jax.imagery.ties import find_ties, transfer
 from seaice_jax.imagery.tracking import track
 from seaice_jax.sensors.control import ControlPoints, ImageObservations
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
-from seaice_jax.workflows.image_sequence import displacement_sigma
+from seaice_jax.workflows.track import displacement_sigma
 
 RESULTS = Path(__file__).with_name("results")
 POINTING = (0.5, 1.0)

@@ -141,7 +141,7 @@ def _simulate(args) -> int:
     check_output(args.out, args.overwrite)  # before the simulation is even loaded
     _stages(args)(f"simulating the {args.scenario} scenario (seed {args.seed})")
     if args.scenario == "lancaster":
-        from seaice_jax.workflows.image_sequence import write_simulated_sequence
+        from seaice_jax.workflows.simulated_sequence import write_simulated_sequence
 
         path = write_simulated_sequence(args.out, args.seed, args.images, args.size, args.clouds,
                                         overwrite=args.overwrite)
@@ -193,7 +193,7 @@ def _remap(args) -> int:
         _say(args, step.report)
         _say(args, f"wrote {len(step.files)} files into {args.out}")
         return EXIT_OK
-    from seaice_jax.workflows.image_sequence import run_remap
+    from seaice_jax.workflows.remap import run_remap
 
     step = run_remap(args.project, args.out, method=args.method, fill=args.fill, progress=_progress(args),
                      overwrite=args.overwrite, models_path=args.models)
@@ -204,7 +204,7 @@ def _remap(args) -> int:
 
 def _track(args) -> int:
     from seaice_jax.imagery.tracking import TrackingOptions
-    from seaice_jax.workflows.image_sequence import run_track
+    from seaice_jax.workflows.track import run_track
 
     options = TrackingOptions(patch=args.patch, search=args.search, spacing=args.spacing,
                               min_correlation=args.min_correlation, first_guess=args.first_guess,
@@ -229,7 +229,7 @@ def _track(args) -> int:
 
 
 def _velocities(args) -> int:
-    from seaice_jax.workflows.image_sequence import run_velocities
+    from seaice_jax.workflows.velocities import run_velocities
 
     step = run_velocities(args.records, args.out, projection=args.projection, box_size=args.box_km * 1000.0,
                           velocity_sigma=args.velocity_sigma, overwrite=args.overwrite)
@@ -239,7 +239,7 @@ def _velocities(args) -> int:
 
 
 def _movie(args) -> int:
-    from seaice_jax.workflows.image_sequence import run_movie
+    from seaice_jax.workflows.movie import run_movie
 
     step = run_movie(args.remapped, args.out, land_mask=args.land_mask, records=args.records, fps=args.fps,
                      scale=args.scale, overwrite=args.overwrite)

@@ -174,7 +174,7 @@ def test_remap_into_a_proj_string_grid(tmp_path):
     import rasterio
 
     from seaice_jax.geometry.scan import ScanModel, satellite_orbit
-    from seaice_jax.workflows.image_sequence import load_remapped
+    from seaice_jax.io.remapped import load_remapped
 
     size = 64
     model = ScanModel(np.radians(7.0), 30.0, np.radians(99.0), np.radians(5.6), np.radians(66.0),

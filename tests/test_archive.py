@@ -27,13 +27,9 @@ from seaice_jax.outputs import output_folder
 from seaice_jax.simulate.satellite import simulate_sequence
 from seaice_jax.timefmt import time_after
 from seaice_jax.workflows.archive import remap_archive, run_remap_archive, run_track_archive
-from seaice_jax.workflows.image_sequence import (
-    OVERVIEW_PANELS,
-    SIMULATED_GRID,
-    run_remap,
-    run_track,
-    write_overview,
-)
+from seaice_jax.workflows.remap import OVERVIEW_PANELS, run_remap, write_overview
+from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID
+from seaice_jax.workflows.track import run_track
 
 IMAGES = 6
 NO_DASHBOARD = cast(str, None)  # typed str; None starts no web server
@@ -182,7 +178,7 @@ def test_default_remap_path_does_not_import_dask():
     code = ("import sys\nfrom seaice_jax.cli import build_parser\n"
             "build_parser().parse_args(['remap', 'p.toml', '--out', 'o'])\n"
             "build_parser().parse_args(['track', 'remapped', '--out', 'o'])\n"
-            "from seaice_jax.workflows import image_sequence\n"
+            "from seaice_jax.workflows import remap, track\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert run.stdout.strip() == "[]"

@@ -24,13 +24,16 @@ from seaice_jax.geometry.scan import ScanModel, satellite_orbit
 from seaice_jax.imagery.tracking import GOOD, OUTLIER, Displacements, TrackingOptions, median_test
 from seaice_jax.io.products import write_geotiff
 from seaice_jax.io.project import read_project, write_project
+from seaice_jax.io.remapped import RemappedStack, save_stack
 from seaice_jax.io.sequence import MODEL_KEYS, make_grid, read_sequence
 from seaice_jax.memory import check_disk, simulate_disk
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 from seaice_jax.simulate.satellite import noaa_pass
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID, RemappedStack, run_remap, run_track, save_stack
 from seaice_jax.workflows.radar_block import block_unknowns
+from seaice_jax.workflows.remap import run_remap
+from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID
+from seaice_jax.workflows.track import run_track
 
 SIZE = 32
 HEAD = 'epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = {centre}\npixel_m = [5000.0, 5000.0]\nshape = [12, 12]\n'

@@ -8,18 +8,14 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
+from seaice_jax.io.remapped import RemappedStack, load_remapped, save_stack
 from seaice_jax.io.sequence import MEMORY_BUDGET, make_grid, read_sequence
 from seaice_jax.memory import remap_peak
 from seaice_jax.simulate.satellite import noaa_pass
-from seaice_jax.workflows.image_sequence import (
-    SIMULATED_GRID,
-    RemappedStack,
-    load_remapped,
-    run_movie,
-    run_track,
-    save_stack,
-)
+from seaice_jax.workflows.movie import run_movie
 from seaice_jax.workflows.sequence_adjust import run_adjust
+from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID
+from seaice_jax.workflows.track import run_track
 
 HEAD = ('epoch = "1983-03-08T00:00:00Z"\n[grid]\ncentre_deg = [74.0, -85.0]\npixel_m = [2500.0, 2500.0]\n'
         'shape = [10, 10]\n')

@@ -12,7 +12,7 @@ from seaice_jax.imagery.coast_control import MatchLevel, coast_control, predicte
 from seaice_jax.io.coastline import coastline, coastline_of_grid
 from seaice_jax.io.sequence import MODEL_KEYS, read_sequence
 from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
-from seaice_jax.workflows.image_sequence import rectify_images
+from seaice_jax.workflows.remap import rectify_images
 
 CENTRE = (73.9, -80.5)  # degrees: the mouth of Lancaster Sound (Devon Island north, Bylot Island south-east)
 SIZE = 240

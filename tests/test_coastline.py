@@ -154,7 +154,8 @@ def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
     from scipy.ndimage import gaussian_filter
 
     from seaice_jax.imagery.tracking import ON_LAND, TrackingOptions, grid_points
-    from seaice_jax.workflows.image_sequence import RemappedStack, land_of_grid, track_sequence
+    from seaice_jax.io.remapped import RemappedStack
+    from seaice_jax.workflows.track import land_of_grid, track_sequence
 
     grid = MapGrid.centred(nsidc_polar_stereographic("north"), np.radians(74.25), np.radians(-84.0), 2500.0, 2500.0,
                            80, 90)
@@ -187,8 +188,8 @@ def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
 def test_sequence_ties_fall_back_to_the_coastlines_land(tmp_path):
     from seaice_jax.io.sequence import read_sequence
     from seaice_jax.simulate.satellite import simulate_sequence
-    from seaice_jax.workflows.image_sequence import write_simulated_sequence
     from seaice_jax.workflows.sequence_adjust import static_mask_path
+    from seaice_jax.workflows.simulated_sequence import write_simulated_sequence
 
     project_path = write_simulated_sequence(tmp_path / "project", sequence=simulate_sequence(5, n_images=2, size=96))
     project = read_sequence(project_path)

@@ -10,10 +10,10 @@ import pytest
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
+from seaice_jax.io.remapped import load_models
 from seaice_jax.io.sequence import read_sequence
 from seaice_jax.io.stations import MEASUREMENT_COLUMNS, control_points, read_measurements
 from seaice_jax.report.text import scan_model_from_json
-from seaice_jax.workflows.image_sequence import load_models
 
 SIZE = 64
 

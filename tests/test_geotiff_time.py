@@ -7,8 +7,9 @@ import rasterio
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.io.products import ACQUISITION_TIME, read_geotiff, write_geotiff
+from seaice_jax.io.remapped import RemappedStack, geotiff_stack
 from seaice_jax.io.sequence import make_grid
-from seaice_jax.workflows.image_sequence import RemappedStack, geotiff_stack, write_remapped
+from seaice_jax.workflows.remap import write_remapped
 
 SPEC = {"projection": "nsidc-north", "centre_deg": [74.0, -85.0], "pixel_m": [2500.0, 2500.0], "shape": [6, 8]}
 

@@ -20,10 +20,10 @@ from seaice_jax.adjust.sequence.model import (
 )
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
+from seaice_jax.io.remapped import load_models, load_remapped, save_models
 from seaice_jax.io.sequence import read_sequence
 from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import noaa_pass
-from seaice_jax.workflows.image_sequence import load_models, load_remapped, save_models
 from tests.helpers import lattice_ties, sequence_rows, whitened_jacobians
 
 SIZE = 256

@@ -8,9 +8,10 @@ import pytest
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
 from seaice_jax.imagery.tracking import ON_LAND
+from seaice_jax.io.remapped import load_remapped
 from seaice_jax.io.sequence import read_sequence
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
-from seaice_jax.workflows.image_sequence import SIMULATED_GRID, load_remapped, write_simulated_sequence
+from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID, write_simulated_sequence
 
 
 @pytest.fixture(scope="module")

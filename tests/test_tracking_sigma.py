@@ -15,9 +15,10 @@ from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import CORRELATION_AREA, GOOD, ON_LAND, STATUS, TrackingOptions, track
 from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.products import OSISAF_STATUS, TO_OSISAF_STATUS
+from seaice_jax.io.remapped import RemappedStack, load_remapped, save_stack
 from seaice_jax.io.sequence import make_grid
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
-from seaice_jax.workflows.image_sequence import RemappedStack, load_remapped, save_stack, track_sequence
+from seaice_jax.workflows.track import track_sequence
 
 
 def one_motion(scene, xy, margin):

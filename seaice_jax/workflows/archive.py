@@ -1,7 +1,7 @@
 """Image archives on Dask (``dask.distributed``): ``seaice remap`` and ``seaice track`` with ``--workers N`` or
 ``--scheduler ADDRESS``.
 
-The single-process :func:`~seaice_jax.workflows.image_sequence.run_remap` holds every image of a sequence in memory.
+The single-process :func:`~seaice_jax.workflows.remap.run_remap` holds every image of a sequence in memory.
 Here every image is one task: a worker reads it (:func:`~seaice_jax.io.sequence.read_sequence_image`), fits its scan
 model to its control points, remaps it, writes its GeoTIFF and its pixels into the run's staging folder and returns
 only the small rest (model, covariance block, control-point deviations). A worker's memory is thus bounded by the
@@ -50,28 +50,28 @@ from seaice_jax.files import atomic_path
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
 from seaice_jax.imagery.tracking import TrackingOptions, grid_points
 from seaice_jax.io.products import write_geotiff
+from seaice_jax.io.remapped import RemappedStack, load_remapped, model_arrays
 from seaice_jax.io.sequence import SequenceProject, read_sequence_image, read_sequence_outline
 from seaice_jax.memory import check_memory, track_peak
 from seaice_jax.outputs import check_interrupted, check_output, output_folder
 from seaice_jax.timefmt import time_after
-from seaice_jax.workflows.image_sequence import (
+from seaice_jax.workflows.remap import (
     Rectification,
-    RemappedStack,
-    Step,
+    check_grid_reached,
+    remap_sequence,
+    write_overview,
+    write_rectification,
+)
+from seaice_jax.workflows.step import Step
+from seaice_jax.workflows.track import (
     TrackedPair,
     TrackedSequence,
-    check_grid_reached,
     follow_floes,
     land_of_grid,
-    load_remapped,
     make_lattice,
-    model_arrays,
-    remap_sequence,
     track_pair,
     track_report,
-    write_overview,
     write_pair,
-    write_rectification,
     write_tracked,
 )
 
@@ -103,7 +103,7 @@ class RemappedImage:
 
 @dataclass(frozen=True)
 class ArchiveRemap:
-    """An archive remapped on Dask: everything of a :class:`~seaice_jax.workflows.image_sequence.RemappedStack` but
+    """An archive remapped on Dask: everything of a :class:`~seaice_jax.io.remapped.RemappedStack` but
     its pixels (in the written ``remapped.npz``).
 
     Attributes:
@@ -141,7 +141,7 @@ def remap_image(project: SequenceProject, entry: dict, index: int, staging: str 
                 fill: int) -> RemappedImage:
     """The task of one image: read it, fit its scan model to its control points (or take the given one), remap it
     into the project's grid, and write ``<name>.tif`` and its pixels (values, valid, geolocation σ) into
-    ``staging``, as :func:`~seaice_jax.workflows.image_sequence.run_remap` computes and writes each image.
+    ``staging``, as :func:`~seaice_jax.workflows.remap.run_remap` computes and writes each image.
     Idempotent (files written atomically), so Dask may run it again after a worker died."""
     start = time.perf_counter()
     staging = Path(staging)
@@ -305,7 +305,7 @@ def _write_npz(path: Path, small: dict, stacked: dict, parts: list[Path]) -> Pat
 
 def write_archive_summary(result: ArchiveRemap, staging: Path) -> list[Path]:
     """``remapped.npz`` (streamed from the per-image parts), ``rectification.csv`` and ``remapped.png``, as
-    :func:`~seaice_jax.workflows.image_sequence.write_remapped` writes them."""
+    :func:`~seaice_jax.workflows.remap.write_remapped` writes them."""
     project, images = result.project, result.images
     names = [image.rectification.name for image in images]
     covariance = np.zeros((_UNKNOWNS * len(images),) * 2)
@@ -355,7 +355,7 @@ def remap_archive(client: Client, project_path: str | os.PathLike, staging: str 
     summary files there (:func:`write_archive_summary`).
 
     Returns:
-        ``(result, files)``: the files those of :func:`~seaice_jax.workflows.image_sequence.write_remapped`, in its
+        ``(result, files)``: the files those of :func:`~seaice_jax.workflows.remap.write_remapped`, in its
         order.
 
     Raises:
@@ -413,7 +413,7 @@ def archive_report(result: ArchiveRemap, method: str, fill: int) -> str:
 def run_remap_archive(project_path: str | os.PathLike, out_dir: str | os.PathLike, method: str = "bilinear",
                       fill: int = 1, progress: bool = True, overwrite: bool = False, workers: int | None = None,
                       scheduler: str | None = None, models_path: str | os.PathLike | None = None) -> Step[ArchiveRemap]:
-    """:func:`~seaice_jax.workflows.image_sequence.run_remap` on Dask (:func:`dask_client`: ``workers`` local
+    """:func:`~seaice_jax.workflows.remap.run_remap` on Dask (:func:`dask_client`: ``workers`` local
     processes, or the cluster at ``scheduler``): the same files in ``out_dir``, written as one run (the project's
     outline and the target are checked before the cluster starts).
 
@@ -493,8 +493,8 @@ def track_image_pair(outline: RemappedStack, first: int, parts: str | os.PathLik
                      layout: str = "project") -> tuple[TrackedPair, list[Path]]:
     """The task of one pair: read images ``first`` and ``first + 1`` from the unpacked pixels (``parts``:
     :func:`staged_stack`) into ``outline`` (:func:`_pair_outline`), track them
-    (:func:`~seaice_jax.workflows.image_sequence.track_pair`) and write the pair's files into ``staging``
-    (:func:`~seaice_jax.workflows.image_sequence.write_pair`). Idempotent (files written atomically).
+    (:func:`~seaice_jax.workflows.track.track_pair`) and write the pair's files into ``staging``
+    (:func:`~seaice_jax.workflows.track.write_pair`). Idempotent (files written atomically).
 
     Returns:
         ``(pair, files)``: the tracked pair (``first`` its index in the sequence) and the files written.
@@ -512,12 +512,12 @@ def track_archive(client: Client, stack: RemappedStack, staging: str | os.PathLi
                   progress: bool = False) -> tuple[TrackedSequence, tuple[Path, ...]]:
     """Track every pair of consecutive images of ``stack`` (from :func:`staged_stack` into ``staging``) as one Dask
     task (:func:`track_image_pair`), follow the floes through the sequence in this process meanwhile
-    (:func:`~seaice_jax.workflows.image_sequence.follow_floes`: a chain), and write the sequence-wide files;
-    arguments as :func:`~seaice_jax.workflows.image_sequence.track_sequence` and
-    :func:`~seaice_jax.workflows.image_sequence.write_tracked`.
+    (:func:`~seaice_jax.workflows.track.follow_floes`: a chain), and write the sequence-wide files;
+    arguments as :func:`~seaice_jax.workflows.track.track_sequence` and
+    :func:`~seaice_jax.workflows.track.write_tracked`.
 
     Returns:
-        ``(tracked, files)``: the files those of :func:`~seaice_jax.workflows.image_sequence.write_tracked`, in its
+        ``(tracked, files)``: the files those of :func:`~seaice_jax.workflows.track.write_tracked`, in its
         order.
     """
     options = options or TrackingOptions()
@@ -552,14 +552,14 @@ def run_track_archive(remapped_dir, out_dir: str | os.PathLike, options: Trackin
                       progress: bool = True, overwrite: bool = False, layout: str = "project",
                       land: str | os.PathLike | None = "coastline", workers: int | None = None,
                       scheduler: str | None = None) -> Step[TrackedSequence]:
-    """:func:`~seaice_jax.workflows.image_sequence.run_track` on Dask (:func:`dask_client`: ``workers`` local
+    """:func:`~seaice_jax.workflows.track.run_track` on Dask (:func:`dask_client`: ``workers`` local
     processes, or the cluster at ``scheduler``) for the folder of ``seaice remap``: the same files in ``out_dir``,
     written as one run (the stack, the land mask and the target are checked before the cluster starts).
 
     Raises:
         SeaiceError: ``remapped_dir`` a list of GeoTIFF files (tracked by the single-process run only), or as
             :func:`dask_client`, :func:`staged_stack` and
-            :func:`~seaice_jax.workflows.image_sequence.land_of_grid`.
+            :func:`~seaice_jax.workflows.track.land_of_grid`.
     """
     if isinstance(remapped_dir, list | tuple):
         raise SeaiceError("--workers/--scheduler: give the folder of `seaice remap`; GeoTIFF files are tracked by "

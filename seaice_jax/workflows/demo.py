@@ -33,15 +33,13 @@ from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
 from seaice_jax.simulate.scenarios import FIGURE_3_3_STATIONS, demo_radar_strip, figure_3_3_image
-from seaice_jax.workflows.image_sequence import (
-    run_movie,
-    run_remap,
-    run_track,
-    run_velocities,
-    write_simulated_sequence,
-)
+from seaice_jax.workflows.movie import run_movie
 from seaice_jax.workflows.radar_block import run_block
+from seaice_jax.workflows.remap import run_remap
 from seaice_jax.workflows.sequence_adjust import run_adjust
+from seaice_jax.workflows.simulated_sequence import write_simulated_sequence
+from seaice_jax.workflows.track import run_track
+from seaice_jax.workflows.velocities import run_velocities
 
 
 @dataclass(frozen=True)

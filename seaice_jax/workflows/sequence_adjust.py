@@ -22,9 +22,12 @@ from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 from seaice_jax.imagery.ties import TieOptions, TiePoints, find_ties, grid_mask
 from seaice_jax.io.coastline import land_mask_of_grid
+from seaice_jax.io.remapped import save_models
 from seaice_jax.io.sequence import MODEL_KEYS, SequenceProject, read_sequence
 from seaice_jax.outputs import output_folder
-from seaice_jax.workflows.image_sequence import Step, land_of_grid, rectify_images, save_models
+from seaice_jax.workflows.remap import rectify_images
+from seaice_jax.workflows.step import Step
+from seaice_jax.workflows.track import land_of_grid
 
 METHODS = ("simultaneous", "per-image")
 
@@ -123,7 +126,7 @@ def adjust_report(result: AdjustedSequence) -> str:
 
 
 def write_adjusted(result: AdjustedSequence, out_dir: str | os.PathLike) -> tuple[Path, ...]:
-    """``models.npz`` (:func:`~seaice_jax.workflows.image_sequence.save_models`), ``models.csv`` (each unknown and
+    """``models.npz`` (:func:`~seaice_jax.io.remapped.save_models`), ``models.csv`` (each unknown and
     its σ, angles in degrees: the keys of a given model, :data:`~seaice_jax.io.sequence.MODEL_KEYS`) and, for the
     simultaneous method, ``ties.csv``."""
     out = Path(out_dir)

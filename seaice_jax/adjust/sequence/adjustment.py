@@ -217,7 +217,7 @@ class SequenceAdjustment(eqx.Module):
 
     def pair_covariance(self, first: int, second: int) -> np.ndarray:
         """``(10, 10)`` joint covariance of two images' unknowns (``first``'s then ``second``'s), as
-        :func:`~seaice_jax.workflows.image_sequence.displacement_sigma` takes it."""
+        :func:`~seaice_jax.workflows.track.displacement_sigma` takes it."""
         index = np.r_[UNKNOWNS_PER_IMAGE * first + np.arange(UNKNOWNS_PER_IMAGE),
                       UNKNOWNS_PER_IMAGE * second + np.arange(UNKNOWNS_PER_IMAGE)]
         return self.covariance[np.ix_(index, index)]
