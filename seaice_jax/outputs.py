@@ -341,3 +341,67 @@ def output_file(target: str | os.PathLike, overwrite: bool = False,
     """As :func:`output_folder`, for a single file: the block writes ``path / target.name``, which replaces
     ``target`` when the block ends without error."""
     return _output(target, False, overwrite, inputs)
+
+
+MANIFEST = "manifest.json"
+"""The file a command writes into its output folder to mark the folder as its own: the command and every file it
+wrote (:func:`write_manifest`)."""
+_MANIFEST_FORMAT = "seaice_jax output manifest"
+
+
+def write_manifest(folder: OutputFolder, command: str) -> Path:
+    """Write :data:`MANIFEST` into ``folder.path`` (call it last): the ``command`` that made the output and every
+    file under ``folder.path`` (the manifest itself included), so that a later run of the same command may recognise
+    the folder as its own (:func:`foreign_output`).
+
+    Returns:
+        the manifest's final path (under ``folder.target``).
+    """
+    from seaice_jax import __version__
+    from seaice_jax.files import write_json
+
+    names = sorted(_files_under(folder.path) | {MANIFEST})
+    write_json(folder.path / MANIFEST, {"format": _MANIFEST_FORMAT, "command": command, "version": __version__,
+                                        "files": names})
+    return folder.target / MANIFEST
+
+
+def _files_under(folder: Path) -> set[str]:
+    """Every file (and link) under ``folder`` as a POSIX path relative to it (folders themselves are not listed)."""
+    names = set()
+    for root, dirs, files in os.walk(folder):
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
+            names.add(Path(root, name).relative_to(folder).as_posix())
+    return names
+
+
+def foreign_output(target: str | os.PathLike, command: str) -> str | None:
+    """Why ``target`` is not an output folder that ``command`` wrote and may replace: ``None`` when it is absent,
+    empty, or holds exactly the files its :data:`MANIFEST` lists, written by ``command``; else the reason (no
+    manifest, another command's, or a file the manifest does not list, e.g. one a user added)."""
+    import json
+
+    target = Path(os.path.realpath(target)) if Path(target).is_dir() else Path(target)  # a link: the folder
+    if not _occupied(target):
+        return None
+    if not target.is_dir():
+        return "it is not a folder"
+    manifest = target / MANIFEST
+    try:
+        document = json.loads(manifest.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return f"it has no {MANIFEST}"
+    except (OSError, UnicodeDecodeError, ValueError) as error:
+        return f"its {MANIFEST} is not readable ({error})"
+    if not isinstance(document, dict) or document.get("format") != _MANIFEST_FORMAT:
+        return f"its {MANIFEST} is not a seaice_jax output manifest"
+    if document.get("command") != command:
+        return f"its {MANIFEST} says {document.get('command')!r} wrote it"
+    listed = document.get("files")
+    if not isinstance(listed, list):
+        return f"its {MANIFEST} lists no files"
+    extra = sorted(_files_under(target) - {str(name) for name in listed})
+    if extra:
+        return f"it holds {extra[0]}, which {command} did not write" + (f" (and {len(extra) - 1} more)"
+                                                                          if len(extra) > 1 else "")
+    return None

@@ -5,7 +5,8 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.files import atomic_path, write_csv
-from seaice_jax.workflows.demo import run_demo
+from seaice_jax.outputs import foreign_output
+from seaice_jax.workflows.demo import DEMO_COMMAND, run_demo
 
 
 def read_csv(path):
@@ -20,8 +21,9 @@ def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
     Minutes and ~3 GB: outside `make test`, run by `make test-slow`."""
     result = run_demo(tmp_path / "out", quick=True)
     names = sorted(p.name for p in (tmp_path / "out").iterdir())
-    assert names == ["aidjex", "figure_3_3_stations.csv", "map.png", "orbit_fit.json", "orbit_fit_report.txt",
-                     "position_sigma.png", "radar_strip.csv", "satellite_image.csv", "sequence"]
+    assert names == ["aidjex", "figure_3_3_stations.csv", "manifest.json", "map.png", "orbit_fit.json",
+                     "orbit_fit_report.txt", "position_sigma.png", "radar_strip.csv", "satellite_image.csv", "sequence"]
+    assert foreign_output(tmp_path / "out", DEMO_COMMAND) is None  # a rerun replaces it
     for name in ("film.gif", "drift/drift_IMG01_IMG02.nc", "remapped/IMG03.tif", "velocities/box_averages.png",
                  "adjusted/models.npz", "adjusted/ties.csv"):
         assert (tmp_path / "out" / "sequence" / name).stat().st_size > 0

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.adjust.orbit.fit import fit_scan_model, position_uncertainty
+from seaice_jax.errors import SeaiceError
 from seaice_jax.files import atomic_path, write_csv, write_json
 from seaice_jax.geometry.earth import latitude_longitude
 from seaice_jax.geometry.projections import TangentPlane, nsidc_polar_stereographic
@@ -26,7 +27,7 @@ from seaice_jax.imagery.remap import remap
 from seaice_jax.imagery.tracking import track
 from seaice_jax.io.coastline import land_mask_of_grid
 from seaice_jax.io.project import write_project
-from seaice_jax.outputs import output_folder
+from seaice_jax.outputs import foreign_output, output_folder, write_manifest
 from seaice_jax.report.figures import MapLayer, MapPanel, plot_image_field, plot_maps
 from seaice_jax.report.text import orbit_fit_json, orbit_fit_report
 from seaice_jax.sensors.control import ControlPoints
@@ -316,15 +317,38 @@ def _silent(message: str) -> None:
     """A ``say`` that says nothing."""
 
 
+DEMO_COMMAND = "seaice demo"
+"""The command named in the demo folder's manifest (:data:`~seaice_jax.outputs.MANIFEST`)."""
+
+
+def demo_may_replace(out_dir: str | os.PathLike, overwrite: bool = False) -> bool:
+    """Whether the demo replaces ``out_dir``: with ``overwrite``, or when ``out_dir`` is a demo folder an earlier
+    run wrote (its :data:`~seaice_jax.outputs.MANIFEST` names :data:`DEMO_COMMAND` and lists every file in it);
+    False for an absent or empty folder.
+
+    Raises:
+        SeaiceError: naming ``out_dir`` and why it is not the demo's own, for any other non-empty folder without
+            ``overwrite``.
+    """
+    if overwrite:
+        return True
+    reason = foreign_output(out_dir, DEMO_COMMAND)
+    if reason is None:
+        return Path(out_dir).is_dir() and any(Path(out_dir).iterdir())
+    raise SeaiceError(f"{out_dir}: not a folder an earlier `{DEMO_COMMAND}` wrote ({reason}); pass --overwrite to "
+                      "replace it whole, or choose another --out")
+
+
 def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False, quick: bool = False,
              say: Callable[[str], None] | None = None) -> DemoResult:
-    """Run the demo and write its files into ``out_dir`` as one run (:func:`~seaice_jax.outputs.output_folder`;
-    ``overwrite`` replaces an existing one whole); ``quick``: a shorter image sequence (3 images of 128 pixels
-    instead of 4 of 160), the same steps; ``say`` receives a message as each stage starts (the command line prints
-    them)."""
+    """Run the demo and write its files into ``out_dir`` as one run (:func:`~seaice_jax.outputs.output_folder`),
+    with a :data:`~seaice_jax.outputs.MANIFEST` of them. A folder an earlier demo wrote is replaced whole, in one
+    step, when the new one is complete; any other non-empty folder only with ``overwrite`` (:func:`demo_may_replace`).
+    ``quick``: a shorter image sequence (3 images of 128 pixels instead of 4 of 160), the same steps; ``say``
+    receives a message as each stage starts (the command line prints them)."""
     say = say or _silent
     out_dir = Path(out_dir)
-    with output_folder(out_dir, overwrite) as folder:
+    with output_folder(out_dir, demo_may_replace(out_dir, overwrite)) as folder:
         say("geolocating a radar strip and the 1985 satellite image")
         radar, image = geolocate_radar_strip(), geolocate_figure_3_3()
         files = _write_geolocation(radar, image, folder.path)
@@ -334,6 +358,7 @@ def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False
         sequence_lines, sequence_files = _image_sequence(folder.path / "sequence", *((3, 128) if quick else (4, 160)),
                                                          say=say)
         files = list(folder.final(files + fit_files + block_files + sequence_files))
+        files.append(write_manifest(folder, DEMO_COMMAND))
     lines = [*_summary(radar, image, fit_report), *block_lines, *sequence_lines,
              f"  wrote {len(files)} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "
              "aidjex/simultaneous/report.txt, sequence/film.gif, ...)"]
