@@ -25,12 +25,35 @@ from matplotlib.figure import Figure  # noqa: E402
 from seaice_jax.drift.kinematics import error_ellipses  # noqa: E402
 from seaice_jax.errors import SeaiceError  # noqa: E402
 from seaice_jax.files import atomic_path  # noqa: E402
-from seaice_jax.report.maps import COASTLINE_GID, CONTROL_GID, coast_in_image, decorate_map  # noqa: E402
+from seaice_jax.report.maps import (  # noqa: E402
+    COASTLINE_GID,
+    CONTROL_GID,
+    coast_in_image,
+    decorate_map,
+    frame_coastline,
+    on_land,
+)
 
 FIGURE_FORMATS_VARIABLE = "SEAICE_FIGURE_FORMATS"
 """Environment variable listing extra formats (``pdf``, ``svg``, comma-separated) written beside each PNG."""
 
 _EXTRA_FORMATS = ("pdf", "svg")
+
+ARROWS_ACROSS = 20
+"""The density rule of every vector map: arrows (and box averages) whose bases lie closer than the map frame's width
+divided by this to an arrow already drawn (taken in the order given) are left out, and the reference arrow is 0.8 of
+that spacing long, so arrows do not run into one another. The key says how many were left out."""
+
+VECTOR_GID = "vectors"
+ELLIPSE_GID = "error ellipse"
+BOX_SIGMA_GID = "box sigma"
+BOX_COUNT_GID = "box count"
+BACKGROUND_GID = "background points"
+TRAJECTORY_GID = "trajectory"
+FIRST_FIX_GID = "first fix"
+KEY_GID = "key"
+"""``gid`` s of the data artists (tests find them, and check that none is drawn on land) and of the key beside a
+vector map (the arrow's length and the ellipses' or rectangles' scale, each stated once)."""
 
 
 @dataclass(frozen=True)
@@ -60,14 +83,49 @@ class MapPanel:
     title: str
 
 
+def _degrees_text(radians, positive: str, negative: str) -> str:
+    value = float(np.degrees(float(radians)))
+    return f"{abs(value):.2f}°{positive if value >= 0 else negative}"
+
+
 def crs_name(projection) -> str:
-    """How a figure names a map's coordinate system: ``EPSG:<code>`` where there is one, else the PROJ string."""
+    """How a figure names a map's coordinate system, in words, with its EPSG code where it has one (never a raw PROJ
+    string): ``"Polar stereographic north (EPSG:3413)"``, ``"Tangent plane at 74.92°N 148.16°W (orthographic)"``;
+    a CRS computed by PROJ by its own name."""
+    from seaice_jax.geometry.crs import CrsProjection
+    from seaice_jax.geometry.projections import (
+        Equirectangular,
+        LambertConformalConic,
+        PolarStereographic,
+        TangentPlane,
+    )
+
     if projection is None:
         return "map grid"
     code = projection.epsg_code() if hasattr(projection, "epsg_code") else None
-    if code is not None:
-        return f"EPSG:{code}"
-    return projection.proj_string() if hasattr(projection, "proj_string") else type(projection).__name__
+    epsg = f" (EPSG:{code})" if code is not None else ""
+    if isinstance(projection, PolarStereographic):
+        hemisphere = "north" if float(projection.standard_parallel) >= 0 else "south"
+        if code is not None:
+            return f"Polar stereographic {hemisphere}{epsg}"
+        return (f"Polar stereographic {hemisphere} (true scale "
+                f"{_degrees_text(projection.standard_parallel, 'N', 'S')}, central meridian "
+                f"{_degrees_text(projection.central_meridian, 'E', 'W')})")
+    if isinstance(projection, TangentPlane):
+        return (f"Tangent plane at {_degrees_text(projection.latitude, 'N', 'S')} "
+                f"{_degrees_text(projection.longitude, 'E', 'W')} (orthographic)")
+    if isinstance(projection, Equirectangular):
+        return (f"Equirectangular at {_degrees_text(projection.reference_latitude, 'N', 'S')} "
+                f"{_degrees_text(projection.reference_longitude, 'E', 'W')}")
+    if isinstance(projection, LambertConformalConic):
+        return (f"Lambert conformal conic (parallels {_degrees_text(projection.standard_parallel_1, 'N', 'S')}, "
+                f"{_degrees_text(projection.standard_parallel_2, 'N', 'S')}){epsg}")
+    if isinstance(projection, CrsProjection):
+        crs = projection.crs
+        name = crs.name if crs.name and crs.name.lower() != "unknown" else (
+            crs.coordinate_operation.method_name if crs.coordinate_operation is not None else "projected CRS")
+        return f"{name}{epsg}"
+    return f"{type(projection).__name__}{epsg}"
 
 
 def _figure(width: float, height: float, rows: int = 1, columns: int = 1, **options) -> tuple[Figure, Any]:
@@ -104,11 +162,6 @@ def _legend_outside(ax, **options):
                   **options)
 
 
-def _vector_key(ax, arrows, length: float, label: str):
-    """The vector key to the right of the axes, below the legend (never over the title)."""
-    ax.quiverkey(arrows, 1.04, 0.02, length, label, labelpos="E", coordinates="axes", fontproperties={"size": 7})
-
-
 def _decorate(ax, projection, **options):
     """The map decorations (:func:`~seaice_jax.report.maps.decorate_map`) where the map's projection is known."""
     if projection is not None:
@@ -116,15 +169,15 @@ def _decorate(ax, projection, **options):
 
 
 def _kilometre_axes(ax, crs: str):
-    """Axes in km of ``crs``; the equal-aspect map box sits at the left of its layout cell (centred, a box shrunk to
-    its aspect moves away from where the constrained layout measured its axis labels, which then leave the
-    figure)."""
-    ax.set_anchor("W")
+    """Axes in km of ``crs`` (named once, on the x axis); the equal-aspect map box sits at the top left of its layout
+    cell (centred, a box shrunk to its aspect moves away from where the constrained layout measured its axis labels,
+    which then leave the figure; at the top, it lines up with the legend beside it)."""
+    ax.set_anchor("NW")
     kilometres = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:.0f}")
     ax.xaxis.set_major_formatter(kilometres)
     ax.yaxis.set_major_formatter(kilometres)
-    ax.set_xlabel(f"x (km, {crs})", fontsize=8)
-    ax.set_ylabel(f"y (km, {crs})", fontsize=8)
+    ax.set_xlabel(f"x (km), {crs}", fontsize=8)
+    ax.set_ylabel("y (km)", fontsize=8)
 
 
 def _nice(value: float) -> float:
@@ -135,9 +188,10 @@ def _nice(value: float) -> float:
 
 
 def ellipse_magnification(semi_major, arrow_length) -> float:
-    """The factor 95 % ellipses are drawn at beside vectors whose reference arrow is ``arrow_length`` long (both in
-    map units): 1 when the median semi-major axis is between a tenth and the whole of the arrow (visible, not hiding
-    the vectors), else the 1-2-5 factor that brings it to about a third of the arrow."""
+    """The factor 95 % ellipses are drawn at, relative to the arrows' scale, beside vectors whose reference arrow is
+    ``arrow_length`` long (both in map units): 1 when the median semi-major axis is between a tenth and the whole of
+    the arrow (visible, not hiding the vectors), else the 1-2-5 factor that brings it to about a third of the
+    arrow. The key states the scale the ellipses are drawn at."""
     semi_major = np.asarray(semi_major, float)
     semi_major = semi_major[np.isfinite(semi_major) & (semi_major > 0)]
     if not semi_major.size:
@@ -146,10 +200,6 @@ def ellipse_magnification(semi_major, arrow_length) -> float:
     if 0.1 * arrow_length <= typical <= arrow_length:
         return 1.0
     return _nice(arrow_length / 3.0 / typical)
-
-
-def _magnification_text(factor: float) -> str:
-    return "true size" if factor == 1.0 else f"drawn ×{factor:g} true size"
 
 
 def _colours(count: int):
@@ -161,13 +211,171 @@ def _colours(count: int):
     return [plt.get_cmap("viridis")(v) for v in np.linspace(0.0, 0.95, count)]
 
 
-def _draw_panel(ax, panel: MapPanel):
-    xs = np.concatenate([np.ravel(layer.x) for layer in panel.layers])
-    ys = np.concatenate([np.ravel(layer.y) for layer in panel.layers])
-    margin = 0.1 * max(np.nanmax(xs) - np.nanmin(xs), np.nanmax(ys) - np.nanmin(ys))
-    x_limits = (np.nanmin(xs) - margin, np.nanmax(xs) + margin)
-    y_limits = (np.nanmin(ys) - margin, np.nanmax(ys) + margin)
-    for colour, layer in zip(_colours(len(panel.layers)), panel.layers, strict=True):
+def thin_points(x, y, spacing: float) -> np.ndarray:
+    """Indices of the points kept when each point closer than ``spacing`` to one kept before it (in the order given)
+    is left out: every two kept points are at least ``spacing`` apart (greedy, over a grid of ``spacing`` cells)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if spacing <= 0 or x.size < 2:
+        return np.arange(x.size)
+    cells: dict[tuple[int, int], list[int]] = {}
+    column, row = np.floor(x / spacing).astype(int), np.floor(y / spacing).astype(int)
+    kept = []
+    for k in range(x.size):
+        near = (m for i in (-1, 0, 1) for j in (-1, 0, 1) for m in cells.get((column[k] + i, row[k] + j), ()))
+        if all((x[k] - x[m]) ** 2 + (y[k] - y[m]) ** 2 >= spacing**2 for m in near):
+            kept.append(k)
+            cells.setdefault((column[k], row[k]), []).append(k)
+    return np.asarray(kept, int)
+
+
+def _thin(points, ax) -> np.ndarray:
+    """:func:`thin_points` of ``(n, 2)`` points at the :data:`ARROWS_ACROSS` spacing of the axes' width."""
+    return thin_points(points[:, 0], points[:, 1], float(np.ptp(ax.get_xlim())) / ARROWS_ACROSS)
+
+
+def _points(values) -> np.ndarray:
+    """``(n, 2)`` finite rows of ``values`` (``None``: none)."""
+    if values is None:
+        return np.zeros((0, 2))
+    values = np.asarray(values, float).reshape(-1, 2)
+    return values[np.isfinite(values).all(axis=1)]
+
+
+def _frame(*point_sets, margin: float = 0.04) -> tuple[float, float, float, float]:
+    """``(x0, x1, y0, y1)``: the box of all finite points, widened by ``margin`` of its larger side."""
+    points = np.concatenate([_points(p) for p in point_sets])
+    if not points.size:
+        return -1.0, 1.0, -1.0, 1.0
+    low, high = points.min(axis=0), points.max(axis=0)
+    pad = max(margin * float(np.max(high - low)), 1.0)
+    return low[0] - pad, high[0] + pad, low[1] - pad, high[1] + pad
+
+
+def _map_figure(frame, width: float = 8.5, side: float = 2.4) -> tuple[Figure, Any, Any]:
+    """One map axes (equal aspect, limits ``frame``) in a figure whose height follows the frame's shape, and beside
+    it a panel ``side`` inches wide (no axes of its own) for the legend and the key: ``(figure, map, panel)``. The
+    panel is an axes of the layout, so what it holds is measured and kept inside the figure whatever the map's
+    shape (an equal-aspect map shrinks within its cell, where the layout does not see it)."""
+    x0, x1, y0, y1 = frame
+    aspect = (y1 - y0) / max(x1 - x0, 1e-9)
+    fig, (ax, panel) = _figure(width, float(np.clip((width - side - 0.9) * aspect + 1.3, 2.6, 8.0)), 1, 2,
+                               gridspec_kw={"width_ratios": [width - side, side]})
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    panel.set_axis_off()
+    return fig, ax, panel
+
+
+def _panel_legend(ax, panel):
+    """The map's legend at the top of the side panel (nothing when there is nothing to explain)."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        panel.legend(handles, labels, loc="upper left", bbox_to_anchor=(0.0, 1.0), borderaxespad=0.0, fontsize=7,
+                     frameon=False)
+
+
+def _sea(ax, projection, *point_sets) -> tuple[Any, list[np.ndarray]]:
+    """The coastline of the axes' frame (``None`` without a projection) and, per ``(n, 2)`` point set, where the
+    points are at sea (not on its land, :func:`~seaice_jax.report.maps.on_land`)."""
+    if projection is None:
+        return None, [np.ones(len(p), bool) for p in point_sets]
+    coast = frame_coastline(ax, projection)
+    return coast, [~on_land(projection, p[:, 0], p[:, 1], coast) if len(p) else np.ones(0, bool)
+                   for p in point_sets]
+
+
+def _length_text(value: float, unit: str) -> str:
+    """A key's length: metres as ``"5 km"`` or ``"200 m"``; other units as given."""
+    if unit == "m":
+        return f"{value / 1000:g} km" if value >= 1000 else f"{value:g} m"
+    return f"{value:g} {unit}"
+
+
+def _key(ax, panel, rows, note: str = ""):
+    """The key at the bottom of the side panel: each row a patch drawn in the map's data scale (an arrow, an
+    ellipse, a rectangle: exactly as large as on the map ``ax``) beside its text, then ``note``."""
+    from matplotlib.offsetbox import AnchoredOffsetbox, AuxTransformBox, HPacker, TextArea, VPacker
+
+    children = []
+    for patch, text in rows:
+        drawing = AuxTransformBox(ax.transData)
+        drawing.add_artist(patch)
+        children.append(HPacker(children=[drawing, TextArea(text, textprops={"fontsize": 7})], align="center",
+                                pad=0, sep=6))
+    if note:
+        children.append(TextArea(note, textprops={"fontsize": 6.5, "color": "0.3"}))
+    key = AnchoredOffsetbox("lower left", child=VPacker(children=children, align="left", pad=0, sep=6),
+                            bbox_to_anchor=(0.0, 0.0), bbox_transform=panel.transAxes, borderpad=0.0, frameon=False)
+    key.set_gid(KEY_GID)
+    panel.add_artist(key)
+
+
+def _arrow_patch(ax, length: float, colour: str = "C0"):
+    """A horizontal arrow ``length`` data units long, shaped as :func:`_quiver` draws them."""
+    from matplotlib.patches import FancyArrow
+
+    width = _SHAFT * float(np.ptp(ax.get_xlim()))
+    return FancyArrow(0.0, 0.0, length, 0.0, width=width, head_width=3 * width, head_length=5 * width,
+                      length_includes_head=True, color=colour, lw=0)
+
+
+_SHAFT = 0.003
+"""Arrow shaft width, a fraction of the map's width (matplotlib's quiver ``width``)."""
+
+
+def _quiver(ax, positions, vectors, scale: float, label: str):
+    """Arrows from ``positions`` along ``vectors`` at ``scale`` vector units per map unit (``gid``
+    :data:`VECTOR_GID`)."""
+    return ax.quiver(positions[:, 0], positions[:, 1], vectors[:, 0], vectors[:, 1], angles="xy", scale_units="xy",
+                     scale=scale, width=_SHAFT, color="C0", label=label, gid=VECTOR_GID, zorder=3)
+
+
+def _median_nearest(points, sample: int = 400, chunk: int = 20_000) -> float:
+    """The median distance from a point to its nearest neighbour among ``(n, 2)`` points (n > 1), over an evenly
+    spaced sample of at most ``sample`` of them (each against all, in chunks: memory stays small)."""
+    points = np.asarray(points, float)
+    chosen = np.unique(np.linspace(0, len(points) - 1, min(sample, len(points))).astype(int))
+    nearest = np.full(chosen.size, np.inf)
+    for start in range(0, len(points), chunk):
+        block = points[start:start + chunk]
+        distance = np.hypot(*(points[chosen, None, :] - block[None, :, :]).transpose(2, 0, 1))
+        distance[chosen[:, None] == np.arange(start, start + len(block))[None, :]] = np.inf
+        nearest = np.minimum(nearest, distance.min(axis=1))
+    return float(np.median(nearest))
+
+
+def _arrow_scale(vectors, positions, frame) -> tuple[float, float]:
+    """``(scale, reference)``: vector units per map unit that draw the 90th-percentile vector (``reference``) 0.8 of
+    the arrows' spacing long: the median distance from a base to its nearest neighbour, at least the
+    :data:`ARROWS_ACROSS` spacing of the frame ``(x0, x1, y0, y1)`` (what thinning leaves) and at most a sixth of
+    its width (a few scattered vectors)."""
+    lengths = np.hypot(*np.asarray(vectors, float).reshape(-1, 2).T)
+    lengths = lengths[np.isfinite(lengths)]
+    reference = float(np.percentile(lengths, 90)) if lengths.size else 0.0
+    reference = reference if reference > 0 else 1.0
+    width = frame[1] - frame[0]
+    nearest = _median_nearest(positions) if len(positions) > 1 else width
+    return reference / (0.8 * float(np.clip(nearest, width / ARROWS_ACROSS, width / 6))), reference
+
+
+def _thinned_note(total: int, land: int, thinned: int, noun: str) -> str:
+    """The key's account of what a vector map leaves out."""
+    lines = [f"{total - land - thinned} of {total} {noun} drawn"]
+    if land:
+        lines.append(f"{land} on land left out")
+    if thinned:
+        lines.append(f"{thinned} thinned (1 per 1/{ARROWS_ACROSS} of the width)")
+    return "\n".join(lines)
+
+
+def _panel_frame(panel: MapPanel) -> tuple[float, float, float, float]:
+    """The frame of a map panel: its layers' points, widened by a tenth of the larger side."""
+    return _frame(*[np.column_stack([np.ravel(layer.x), np.ravel(layer.y)]) for layer in panel.layers], margin=0.1)
+
+
+def _draw_panel(ax, panel: MapPanel, frame, colours):
+    for colour, layer in zip(colours, panel.layers, strict=True):
         if layer.kind == "grid":
             ax.plot(layer.x, layer.y, color=colour, lw=0.5)
             ax.plot(layer.x.T, layer.y.T, color=colour, lw=0.5)
@@ -176,21 +384,30 @@ def _draw_panel(ax, panel: MapPanel):
             ax.scatter(layer.x, layer.y, s=14, color=colour, label=layer.label, zorder=3)
             for name, x, y in zip(layer.names, layer.x, layer.y, strict=False):
                 ax.annotate(name, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
-    ax.set_xlim(*x_limits)
-    ax.set_ylim(*y_limits)
+    ax.set_xlim(*frame[:2])
+    ax.set_ylim(*frame[2:])
     ax.set_aspect("equal")
     decorate_map(ax, panel.projection)
     _kilometre_axes(ax, crs_name(panel.projection))
     ax.set_title(panel.title, fontsize=9)
-    _legend_outside(ax)
 
 
 def maps_figure(panels: Sequence[MapPanel], title: str) -> Figure:
-    """Maps side by side, each with the coastline and land, a labelled graticule and a scale bar
-    (:func:`~seaice_jax.report.maps.decorate_map`), axes in projected kilometres of the panel's projection."""
-    fig, axes = _figure(6.0 * len(panels) + 1.5, 5.5, 1, len(panels), squeeze=False)
-    for ax, panel in zip(axes[0], panels, strict=True):
-        _draw_panel(ax, panel)
+    """Maps side by side, each as wide as its frame's shape asks, with the coastline and land, a labelled graticule
+    and a scale bar (:func:`~seaice_jax.report.maps.decorate_map`), axes in projected kilometres of the panel's
+    projection (named under it), one legend below them all."""
+    frames = [_panel_frame(panel) for panel in panels]
+    ratios = [float(np.clip((x1 - x0) / max(y1 - y0, 1e-9), 0.5, 2.5)) for x0, x1, y0, y1 in frames]
+    fig, axes = _figure(max(4.2 * sum(ratios) + 1.5 * len(panels), 7.0), 6.0, 1, len(panels), squeeze=False,
+                        gridspec_kw={"width_ratios": ratios})
+    colours = _colours(sum(len(panel.layers) for panel in panels))  # one legend: a colour per layer of any panel
+    for ax, panel, frame in zip(axes[0], panels, frames, strict=True):
+        _draw_panel(ax, panel, frame, colours[:len(panel.layers)])
+        colours = colours[len(panel.layers):]
+    handles = [entry for ax in axes[0] for entry in zip(*ax.get_legend_handles_labels(), strict=True)]
+    if handles:
+        fig.legend(*zip(*handles, strict=True), loc="outside lower center", ncol=min(len(handles), 3), fontsize=7,
+                   frameon=False)
     fig.suptitle(title, fontsize=11)
     return fig
 
@@ -229,44 +446,58 @@ def plot_image_field(path: str | os.PathLike, *args, **options) -> Path:
 
 
 def vectors_figure(positions, vectors, title: str, label: str, background=None,
-                 covariances=None, projection=None, background_label: str = "points without a vector") -> Figure:
+                   covariances=None, projection=None, background_label: str = "points without a vector") -> Figure:
     """Vectors (e.g. drift, error or discrepancy vectors, metres) at map positions (metres), as arrows.
 
-    The arrow scale is in the vector key; ``background``: optional ``(n, 2)`` positions drawn as grey dots
-    (``background_label`` in the legend); ``covariances``: optional ``(n, 2, 2)`` (m²) of the vectors, drawn as
-    95 % error ellipses at the arrow tips at the arrows' scale times :func:`ellipse_magnification` (stated in the
-    legend); ``projection``: the positions' map projection, named on the axes and used to draw the coastline
-    and land, a labelled graticule and a scale bar (:func:`~seaice_jax.report.maps.decorate_map`).
+    The map's frame holds every point, arrow and ellipse; the arrows are thinned to :data:`ARROWS_ACROSS` across
+    its width and those starting on land left out (with a ``projection``), the key beside the map saying how many.
+    The key shows the reference arrow and, with ``covariances``, a reference 95 % ellipse, each drawn at its scale
+    on the map with the length it stands for. ``background``: optional ``(n, 2)`` positions drawn as grey dots
+    (``background_label`` in the legend; those on land left out); ``covariances``: optional ``(n, 2, 2)`` (m²) of
+    the vectors, drawn as 95 % error ellipses at the arrow tips at the arrows' scale, or at a 1-2-5 multiple of it
+    where that would leave them invisible or hiding the arrows (:func:`ellipse_magnification`); ``projection``: the
+    positions' map projection, named on the axes and used to draw the coastline and land, a labelled graticule and
+    a scale bar (:func:`~seaice_jax.report.maps.decorate_map`).
     """
     from matplotlib.patches import Ellipse
 
-    positions, vectors = np.asarray(positions, float), np.asarray(vectors, float)
-    fig, ax = _figure(8.5, 6.0)
-    if background is not None:
-        ax.scatter(*np.asarray(background).T, s=3, color="0.7", zorder=0, label=background_label)
-    length = float(np.nanpercentile(np.hypot(*vectors.T), 90)) if vectors.size else 1.0
-    length = max(length, 1e-9)
-    extent = np.concatenate([positions, np.asarray(background, float).reshape(-1, 2)]) if background is not None \
-        else positions
-    span = float(np.nanmax(np.ptp(extent, axis=0))) if extent.size else 1.0
-    arrow = max(0.06 * span, 1.0)  # map metres of the reference (90th percentile) arrow
-    scale = length / arrow  # metres of vector per metre of map
-    arrows = ax.quiver(positions[:, 0], positions[:, 1], vectors[:, 0], vectors[:, 1], angles="xy",
-                       scale_units="xy", scale=scale, width=0.003, color="C0", label="vector")
-    _vector_key(ax, arrows, length, f"{length / 1000:.3g} km")
+    positions, vectors = np.asarray(positions, float).reshape(-1, 2), np.asarray(vectors, float).reshape(-1, 2)
+    finite = np.isfinite(positions).all(axis=1) & np.isfinite(vectors).all(axis=1)
+    positions, vectors = positions[finite], vectors[finite]
+    background = _points(background)
+    scale, reference = _arrow_scale(vectors, positions, _frame(positions, background))
+    tips = positions + vectors / scale
+    major = minor = angle = np.zeros(len(positions))
+    factor = 1.0
     if covariances is not None:
-        major, minor, angle = error_ellipses(covariances)
-        factor = ellipse_magnification(np.asarray(major) / scale, arrow)
-        tips = positions + vectors / scale
-        for k in np.nonzero(np.isfinite(major) & np.isfinite(tips).all(axis=1))[0]:
-            ax.add_patch(Ellipse(tips[k], 2 * factor * major[k] / scale, 2 * factor * minor[k] / scale,
-                                 angle=np.degrees(angle[k]), fill=False, color="C3", lw=0.6))
-        ax.plot([], [], color="C3", lw=0.6, label=f"95 % error ellipse\n({_magnification_text(factor)})")
-    ax.set_aspect("equal")
-    _decorate(ax, projection)
+        major, minor, angle = (np.asarray(a, float)[finite] for a in error_ellipses(covariances))
+        factor = ellipse_magnification(major / scale, 0.8 * reference / scale)
+    reach = np.nan_to_num(factor * major / scale)[:, None]
+    fig, ax, panel = _map_figure(_frame(positions, background, tips, tips - reach, tips + reach, margin=0.03))
+    coast, (sea, background_sea) = _sea(ax, projection, positions, background)
+    shown = np.flatnonzero(sea)[_thin(positions[sea], ax)]
+    if len(background):
+        ax.scatter(*background[background_sea].T, s=3, color="0.7", zorder=1, label=background_label,
+                   gid=BACKGROUND_GID)
+    _quiver(ax, positions[shown], vectors[shown], scale, "vector")
+    rows: list[tuple[Any, str]] = [(_arrow_patch(ax, _nice(reference) / scale), _length_text(_nice(reference), "m"))]
+    if covariances is not None:
+        for k in shown[np.isfinite(major[shown])]:
+            ax.add_patch(Ellipse(tuple(tips[k]), 2 * factor * float(major[k]) / scale,
+                                 2 * factor * float(minor[k]) / scale, angle=float(np.degrees(angle[k])),
+                                 fill=False, color="C3", lw=0.6, gid=ELLIPSE_GID, zorder=2.9))
+        ax.plot([], [], color="C3", lw=0.6, label="95 % error ellipse")
+        typical = _nice(float(np.nanmedian(major[shown]))) if np.isfinite(major[shown]).any() else reference
+        radius = factor * typical / scale
+        rows.append((Ellipse((0.0, 0.0), 2 * radius, 2 * radius, fill=False, color="C3", lw=0.6),
+                     f"95 % ellipse, semi-axis {_length_text(typical, 'm')}"
+                     + ("" if factor == 1.0 else f"\n(ellipses {factor:g}× the arrows' scale)")))
+    _key(ax, panel, rows, _thinned_note(len(positions), int((~sea).sum()), len(np.flatnonzero(sea)) - len(shown),
+                                 "vectors"))
+    _decorate(ax, projection, coast=coast)
     _kilometre_axes(ax, crs_name(projection))
-    ax.set_title(f"{title}\n{label}", fontsize=9)
-    _legend_outside(ax)
+    fig.suptitle(f"{title}\n{label}", fontsize=9)
+    _panel_legend(ax, panel)
     return fig
 
 
@@ -338,35 +569,54 @@ def plot_tie_discrepancies(path: str | os.PathLike, *args, **options) -> Path:
 def box_averages_figure(boxes, title: str, background=None, projection=None) -> Figure:
     """Box-averaged velocity vectors with their standard-deviation rectangles at the arrow tips (source 001,
     Figure 4-7): ``boxes`` a :class:`~seaice_jax.drift.kinematics.BoxAverages` (m, m/s); the number under each
-    arrow is the count of velocities averaged; ``projection``: the map's, for the coastline, graticule and scale bar
-    (:func:`~seaice_jax.report.maps.decorate_map`)."""
+    arrow is the count of velocities averaged. The rectangles are ±1 standard deviation at the arrows' scale (or a
+    1-2-5 multiple of it, :func:`ellipse_magnification`); the key shows a reference arrow and rectangle with the
+    velocities they stand for. Boxes whose centre is on land are left out, and thinned as arrows are
+    (:data:`ARROWS_ACROSS`); ``background``: floe positions (grey, those on land left out); ``projection``: the
+    map's, for the coastline, graticule and scale bar (:func:`~seaice_jax.report.maps.decorate_map`)."""
     from matplotlib.patches import Rectangle
 
-    fig, ax = _figure(8.5, 6.0)
-    if background is not None:
-        ax.scatter(*np.asarray(background).T, s=2, color="0.75", zorder=0, label="floe positions")
-    speed = np.hypot(boxes.u, boxes.v)
-    reference = float(np.nanmax(speed)) if speed.size else 0.1
-    columns = np.unique(np.asarray(boxes.x, float))
-    spacing = float(np.nanmin(np.diff(columns))) if columns.size > 1 else 125e3
-    scale = max(reference, 1e-9) / (0.4 * spacing)  # m/s per metre of map
-    x, y = np.asarray(boxes.x, float), np.asarray(boxes.y, float)
-    arrows = ax.quiver(x, y, boxes.u, boxes.v, angles="xy", scale_units="xy", scale=scale, width=0.004, color="C0",
-                       label="box-average velocity")
-    for k in range(x.size):
-        tip = (x[k] + boxes.u[k] / scale, y[k] + boxes.v[k] / scale)
-        w, h = 2 * boxes.sigma_u[k] / scale, 2 * boxes.sigma_v[k] / scale
-        ax.add_patch(Rectangle((tip[0] - w / 2, tip[1] - h / 2), w, h, fill=False, color="C3", lw=0.8))
-        ax.annotate(str(boxes.count[k]), (x[k], y[k]), fontsize=6, color="0.3", xytext=(2, -8),
-                    textcoords="offset points")
-    _vector_key(ax, arrows, reference, f"{reference * 86.4:.3g} km/day")
+    positions = np.column_stack([np.asarray(boxes.x, float), np.asarray(boxes.y, float)])
+    velocity = np.column_stack([np.asarray(boxes.u, float), np.asarray(boxes.v, float)])
+    sigma = np.nan_to_num(np.column_stack([np.asarray(boxes.sigma_u, float), np.asarray(boxes.sigma_v, float)]))
+    count = np.asarray(boxes.count)
+    finite = np.isfinite(positions).all(axis=1) & np.isfinite(velocity).all(axis=1)
+    positions, velocity, sigma, count = positions[finite], velocity[finite], sigma[finite], count[finite]
+    background = _points(background)
+    scale, reference = _arrow_scale(velocity, positions, _frame(positions, background))
+    factor = ellipse_magnification(np.max(sigma, axis=1) / scale, 0.8 * reference / scale)
+    tips = positions + velocity / scale
+    fig, ax, panel = _map_figure(_frame(positions, background, tips - factor * sigma / scale,
+                                        tips + factor * sigma / scale, margin=0.03))
+    coast, (sea, background_sea) = _sea(ax, projection, positions, background)
+    shown = np.flatnonzero(sea)[_thin(positions[sea], ax)]
+    if len(background):
+        ax.scatter(*background[background_sea].T, s=2, color="0.75", zorder=1, label="floe positions",
+                   gid=BACKGROUND_GID)
+    _quiver(ax, positions[shown], velocity[shown], scale, "box-average velocity")
+    for k in shown:
+        w, h = 2 * factor * sigma[k] / scale
+        ax.add_patch(Rectangle((tips[k, 0] - w / 2, tips[k, 1] - h / 2), w, h, fill=False, color="C3", lw=0.8,
+                               gid=BOX_SIGMA_GID, zorder=2.9))
+        ax.annotate(str(count[k]), tuple(positions[k]), fontsize=6, color="0.3", xytext=(0, -3), ha="center",
+                    va="top", textcoords="offset points", gid=BOX_COUNT_GID)
     ax.plot([], [], color="C3", lw=0.8, label="±1 standard deviation")
     ax.plot([], [], " ", label="numbers: velocities per box")
-    ax.set_aspect("equal")
-    _decorate(ax, projection)
+    per_day = 86.4  # km/day per m/s: the key states round numbers of km/day
+    typical = _nice(float(np.median(sigma[shown])) * per_day) if shown.size and np.median(sigma[shown]) > 0 \
+        else _nice(reference * per_day)
+    half = factor * typical / per_day / scale
+    rows = [(_arrow_patch(ax, _nice(reference * per_day) / per_day / scale),
+             _length_text(_nice(reference * per_day), "km/day")),
+            (Rectangle((-half, -half), 2 * half, 2 * half, fill=False, color="C3", lw=0.8),
+             f"±1σ of {_length_text(typical, 'km/day')}"
+             + ("" if factor == 1.0 else f"\n(rectangles {factor:g}× the arrows' scale)"))]
+    _key(ax, panel, rows, _thinned_note(len(positions), int((~sea).sum()), len(np.flatnonzero(sea)) - len(shown),
+                                 "boxes"))
+    _decorate(ax, projection, coast=coast)
     _kilometre_axes(ax, crs_name(projection))
-    ax.set_title(title, fontsize=9)
-    _legend_outside(ax)
+    fig.suptitle(title, fontsize=9)
+    _panel_legend(ax, panel)
     return fig
 
 
@@ -399,11 +649,11 @@ def plot_velocity_series(path: str | os.PathLike, *args, **options) -> Path:
     return _save(velocity_series_figure(*args, **options), path)
 
 
-def remapped_figure(images, titles, extent_km, vectors=None, projection=None,
-                  units: str = "image value (as digitized)") -> Figure:
+def remapped_figure(images, titles, extent_km, projection=None,
+                    units: str = "image value (as digitized)") -> Figure:
     """Remapped images side by side (NaN white) on one grey scale with its colour bar (``units``), axes in km of
-    ``projection`` (given: with the coastline as a line over the image, a labelled graticule and a scale bar,
-    :func:`~seaice_jax.report.maps.decorate_map`); ``vectors``: optional ``(x, y, dx, dy)`` km on the first."""
+    ``projection`` (named in the title; given: with the coastline as a line over the image, a labelled graticule and
+    a scale bar, :func:`~seaice_jax.report.maps.decorate_map`)."""
     count = len(images)
     columns = min(count, 4)
     rows = -(-count // columns)
@@ -411,22 +661,19 @@ def remapped_figure(images, titles, extent_km, vectors=None, projection=None,
     finite = [np.asarray(image, float)[np.isfinite(image)] for image in images]
     values = np.concatenate(finite) if any(v.size for v in finite) else np.zeros(1)
     low, high = np.percentile(values, [1, 99])
-    crs = crs_name(projection)
     for ax in axes.ravel()[count:]:
         ax.remove()
     shown = []
     for k, ax in enumerate(axes.ravel()[:count]):
         shown.append(ax.imshow(np.ma.masked_invalid(images[k]), cmap="gray", extent=extent_km, origin="upper",
-                                vmin=low, vmax=high))
+                               vmin=low, vmax=high))
         ax.set_title(titles[k], fontsize=8)
         ax.tick_params(labelsize=6)
-        if k == 0 and vectors is not None:
-            ax.quiver(*vectors, angles="xy", scale_units="xy", scale=0.2, color="C1", width=0.006)
         ax.set_xlabel("x (km)", fontsize=7)
         ax.set_ylabel("y (km)", fontsize=7)
         _decorate(ax, projection, unit=1000.0, land=False, coast_colour="orange", fontsize=5.0)
     fig.colorbar(shown[0], ax=list(axes.ravel()[:count]), label=units, shrink=0.8)
-    fig.suptitle(f"Remapped images on one grid ({crs}); white: no data", fontsize=9)
+    fig.suptitle(f"Remapped images on one grid, {crs_name(projection)}; white: no data", fontsize=9)
     return fig
 
 
@@ -437,21 +684,34 @@ def plot_remapped(path: str | os.PathLike, *args, **options) -> Path:
 
 def trajectories_figure(floe, x, y, title: str, limit: int = 400, projection=None) -> Figure:
     """Floe trajectories (source 001, Figure 4-3): one line per floe through its fixes (m, in time order of the
-    rows), a dot at its first fix; at most ``limit`` floes drawn; ``projection``: the map's, for the coastline,
-    graticule and scale bar (:func:`~seaice_jax.report.maps.decorate_map`)."""
+    rows), a dot at its first fix; at most ``limit`` floes drawn; fixes on land are left out (the line breaks
+    there); ``projection``: the map's, for the coastline, graticule and scale bar
+    (:func:`~seaice_jax.report.maps.decorate_map`)."""
     floe, x, y = np.asarray(floe), np.asarray(x, float), np.asarray(y, float)
-    fig, ax = _figure(8.5, 6.0)
-    for f in list(dict.fromkeys(floe.tolist()))[:limit]:
-        at = floe == f
-        ax.plot(x[at], y[at], lw=0.7, color="C0")
-        ax.plot(x[at][:1], y[at][:1], ".", ms=3, color="C3")
-    ax.plot([], [], lw=0.7, color="C0", label="trajectory")
-    ax.plot([], [], ".", ms=3, color="C3", label="first fix")
-    ax.set_aspect("equal")
-    _decorate(ax, projection)
+    fixes = np.column_stack([x, y])
+    fig, ax, panel = _map_figure(_frame(fixes))
+    coast, (sea,) = _sea(ax, projection, fixes)
+    floes = list(dict.fromkeys(floe.tolist()))
+    lines, firsts = [], []
+    for f in floes[:limit]:
+        at = np.flatnonzero(floe == f)
+        line = np.where(sea[at, None], fixes[at], np.nan)
+        lines.append(np.vstack([line, [np.nan, np.nan]]))
+        if sea[at[0]]:
+            firsts.append(fixes[at[0]])
+    joined = np.concatenate(lines) if lines else np.zeros((0, 2))
+    ax.plot(joined[:, 0], joined[:, 1], lw=0.7, color="C0", gid=TRAJECTORY_GID, label="trajectory")
+    first = _points(firsts)
+    ax.plot(first[:, 0], first[:, 1], ".", ms=3, color="C3", gid=FIRST_FIX_GID, label="first fix")
+    left_out = [f"{len(floes) - limit} of {len(floes)} floes not drawn"] if len(floes) > limit else []
+    if (~sea).any():
+        left_out.append(f"{int((~sea).sum())} fixes on land left out")
+    if left_out:
+        ax.plot([], [], " ", label="\n".join(left_out))
+    _decorate(ax, projection, coast=coast)
     _kilometre_axes(ax, crs_name(projection))
-    ax.set_title(title, fontsize=9)
-    _legend_outside(ax)
+    fig.suptitle(title, fontsize=9)
+    _panel_legend(ax, panel)
     return fig
 
 

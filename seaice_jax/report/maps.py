@@ -251,15 +251,14 @@ def decorate_map(ax, projection, unit: float = 1.0, coast: Coastline | None = No
     draw_scale_bar(ax, projection, unit, fontsize)
 
 
-def map_overlay(grid: MapGrid, scale: int = 2, land: bool = True, coast: Coastline | None = None,
-                fontsize: float = 6.0) -> np.ndarray:
-    """The map decorations of a grid's raster (a film's frames) as an RGBA image to lay over it:
-    ``(n_rows·scale, n_columns·scale, 4)`` uint8, transparent where nothing is drawn; pixel ``(i, j)`` covers grid
-    cell ``(i // scale, j // scale)``. Drawn by :func:`decorate_map` (coast, ``land`` filled, labelled graticule,
-    scale bar) at 100 dots per inch, so a film and the figures show the same map."""
+def overlay_figure(grid: MapGrid, scale: int = 2, land: bool = True, coast: Coastline | None = None,
+                   fontsize: float = 6.0) -> Figure:
+    """The figure :func:`map_overlay` renders: one frameless axes filling a ``(n_columns·scale, n_rows·scale)``
+    pixel canvas at 100 dots per inch, transparent, with the grid's extent as its limits and
+    :func:`decorate_map`'s coast (``land`` filled), labelled graticule and scale bar."""
     height, width = grid.n_rows * scale, grid.n_columns * scale
     fig = Figure(figsize=(width / 100.0, height / 100.0), dpi=100)
-    canvas = FigureCanvasAgg(fig)
+    FigureCanvasAgg(fig)
     fig.patch.set_alpha(0.0)
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
     ax.set_axis_off()
@@ -268,8 +267,30 @@ def map_overlay(grid: MapGrid, scale: int = 2, land: bool = True, coast: Coastli
     ax.set_xlim(left, left + grid.n_columns * float(grid.pixel_width))
     ax.set_ylim(top - grid.n_rows * float(grid.pixel_height), top)
     decorate_map(ax, grid.projection, coast=coast, land=land, fontsize=fontsize)
+    return fig
+
+
+def map_overlay(grid: MapGrid, scale: int = 2, land: bool = True, coast: Coastline | None = None,
+                fontsize: float = 6.0) -> np.ndarray:
+    """The map decorations of a grid's raster (a film's frames) as an RGBA image to lay over it:
+    ``(n_rows·scale, n_columns·scale, 4)`` uint8, transparent where nothing is drawn; pixel ``(i, j)`` covers grid
+    cell ``(i // scale, j // scale)``. Drawn by :func:`decorate_map` (coast, ``land`` filled, labelled graticule,
+    scale bar) at 100 dots per inch (:func:`overlay_figure`), so a film and the figures show the same map."""
+    fig = overlay_figure(grid, scale, land, coast, fontsize)
+    canvas = fig.canvas
     canvas.draw()
-    return np.array(canvas.buffer_rgba(), dtype=np.uint8)
+    return np.array(canvas.buffer_rgba(), dtype=np.uint8)  # type: ignore[attr-defined]
+
+
+def on_land(projection, x, y, coast: Coastline) -> np.ndarray:
+    """``True`` where map points ``(x, y)`` (metres in ``projection``'s plane, any shape) lie on the coast's GSHHG
+    land (:meth:`~seaice_jax.io.coastline.Coastline.contains` of their latitude and longitude); NaN points are not on
+    land. Figures leave such vectors, boxes and floe fixes out."""
+    x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+    if not x.size:
+        return np.zeros(x.shape, bool)
+    latitude, longitude = bucketed(projection.inverse, x.ravel(), y.ravel())
+    return coast.contains(np.degrees(latitude), np.degrees(longitude)).reshape(x.shape)
 
 
 def coast_in_image(model, coast: Coastline, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
