@@ -3,10 +3,12 @@
 
 The user API, re-exported here (``import seaice_jax as sj; sj.fit_scan_model(...)``), in the order a user meets it:
 readers (files in), models (geometry, sensors, observation and option types), verbs (fit, adjust, remap, track,
-simulate), results, products (files out), errors. The list is written once, as the type checker's imports below:
-the names, their modules and ``__all__`` are read from it. Each name is imported on first use, so that ``import
-seaice_jax`` (and the ``seaice`` command's ``--help``) loads neither JAX nor OpenCV. Deeper modules hold the rest
-(the documentation's module table).
+simulate), results, products (files out), the session (:func:`enable_compilation_cache`), errors. The list is
+written once, as the type checker's imports below: the names, their modules and ``__all__`` are read from it. Each
+name is imported on first use, so that ``import seaice_jax`` (and the ``seaice`` command's ``--help``) loads neither
+JAX nor OpenCV. Deeper modules hold the rest (the documentation's module table). The library reports through
+:mod:`logging` (the ``seaice_jax`` loggers: the workflows' stages at INFO, notes at WARNING); the ``seaice`` command
+prints them.
 
 Float64: geocentric coordinates are ~6.4e6 m and must keep millimetres. Every subpackage that runs JAX imports
 :mod:`seaice_jax._config` (``jax_enable_x64``) before any of its code, so no seaice_jax function runs in float32.
@@ -108,6 +110,9 @@ if TYPE_CHECKING:
     # products
     from seaice_jax.drift.records import write_records
     from seaice_jax.io.products import write_drift_netcdf, write_geotiff, write_osisaf_drift
+
+    # the session: JAX's compilations kept on disk between sessions
+    from seaice_jax._compilation_cache import enable_compilation_cache
 
 __version__ = "0.1.0"
 

@@ -6,11 +6,14 @@ codes (:mod:`seaice_jax.errors`): 0 done, 1 runtime failure, 2 usage or bad inpu
 """
 
 import argparse
+import contextlib
+import logging
 import math
 import os
 import sys
 import time
 import traceback
+from collections.abc import Iterator
 from pathlib import Path
 
 # One BLAS thread unless the user says otherwise, set before NumPy loads OpenBLAS (the outputs import below): the
@@ -20,11 +23,9 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from seaice_jax import __version__  # noqa: E402
+from seaice_jax._compilation_cache import CACHE_VARIABLE, default_cache_folder, enable_compilation_cache  # noqa: E402
 from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code  # noqa: E402
 from seaice_jax.outputs import Interrupted, check_interrupted, interrupts_raise  # noqa: E402
-
-CACHE_VARIABLE = "SEAICE_JAX_CACHE_DIR"
-"""Environment variable naming the folder of JAX's persistent compilation cache (empty: no cache)."""
 
 
 def _in_range(kind, low, high, above: bool = False):
@@ -430,23 +431,37 @@ def compile_cache_folder(enabled: bool = True) -> Path | None:
     ``$SEAICE_JAX_CACHE_DIR`` when set (empty: no cache), else ``$XDG_CACHE_HOME/seaice_jax/jax`` (default
     ``~/.cache/seaice_jax/jax``); None when ``enabled`` is false (``--no-compile-cache``).
     """
-    if not enabled:
-        return None
-    if CACHE_VARIABLE in os.environ:
-        return Path(os.environ[CACHE_VARIABLE]).expanduser() if os.environ[CACHE_VARIABLE] else None
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache").expanduser() / "seaice_jax" / "jax"
+    return default_cache_folder() if enabled else None
 
 
 def _use_compile_cache(folder: Path | None) -> None:
     """Turn on JAX's persistent compilation cache in ``folder`` (every compilation, however short, is kept: a second
     run of a command then skips XLA's compilations), or leave it off for None."""
-    if folder is None:
-        return
-    import jax
+    if folder is not None:
+        enable_compilation_cache(folder)
 
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+@contextlib.contextmanager
+def _library_logging(verbosity: int) -> Iterator[None]:
+    """While a command runs, the library's log records (the ``seaice_jax`` loggers) go to stderr as
+    ``seaice: message``: warnings and information by default, also debug messages with ``-v``, errors only with
+    ``-q``. The logger's level, handlers and propagation are restored afterwards (``main`` may run in a process that
+    configures logging itself)."""
+    logger = logging.getLogger("seaice_jax")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("seaice: %(message)s"))
+    level = logging.ERROR if verbosity <= QUIET else logging.DEBUG if verbosity >= VERBOSE else logging.INFO
+    handler.setLevel(level)
+    saved = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
 
 
 def _add_verbosity(parser: argparse.ArgumentParser, default) -> None:
@@ -615,9 +630,10 @@ def main(argv=None) -> int:
     try:
         with interrupts_raise():  # from the start: a Ctrl-C while JAX loads is not lost (nor a traceback)
             args = build_parser().parse_args(argv)
-            _use_compile_cache(compile_cache_folder(args.compile_cache))
-            check_interrupted()  # one swallowed while JAX loaded (by its garbage-collection callback)
-            code = args.run(args)
+            with _library_logging(args.verbosity):
+                _use_compile_cache(compile_cache_folder(args.compile_cache))
+                check_interrupted()  # one swallowed while JAX loaded (by its garbage-collection callback)
+                code = args.run(args)
     except Interrupted as interrupt:
         name = "seaice" if args is None else f"seaice {args.command}"
         left = ("" if not interrupt.left else f", but its temporary folder {', '.join(map(str, interrupt.left))} "

@@ -27,6 +27,7 @@ Dask is imported only here; the default single-machine path never loads it.
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import signal
@@ -438,10 +439,11 @@ def run_remap_archive(project_path: str | os.PathLike, out_dir: str | os.PathLik
 
 
 def workers_note(workers: int | None, scheduler: str | None, progress: bool) -> str:
-    """The note of :func:`local_workers` for a local cluster (printed on stderr at once with ``progress``)."""
+    """The note of :func:`local_workers` for a local cluster, logged at once (``seaice_jax.workflows.archive``,
+    WARNING; with ``progress``, before the cluster starts: the command line prints it then)."""
     note = local_workers(workers)[1] if scheduler is None else ""
-    if note and progress:
-        print(f"seaice: {note}", file=sys.stderr, flush=True)
+    if note:
+        logging.getLogger(__name__).warning(note)
     return note
 
 

@@ -8,6 +8,7 @@ sequence through rectification, remapping, tracking, velocities and a film; writ
 GeoTIFF, GeoJSON and PNG maps.
 """
 
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -313,8 +314,8 @@ def _summary(radar: RadarStripCheck, image: ImageCheck, fit_report: str) -> list
     ]
 
 
-def _silent(message: str) -> None:
-    """A ``say`` that says nothing."""
+_log = logging.getLogger(__name__)
+"""Where :func:`run_demo` reports its stages when no ``say`` is given (INFO)."""
 
 
 DEMO_COMMAND = "seaice demo"
@@ -345,8 +346,9 @@ def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False
     with a :data:`~seaice_jax.outputs.MANIFEST` of them. A folder an earlier demo wrote is replaced whole, in one
     step, when the new one is complete; any other non-empty folder only with ``overwrite`` (:func:`demo_may_replace`).
     ``quick``: a shorter image sequence (3 images of 128 pixels instead of 4 of 160), the same steps; ``say``
-    receives a message as each stage starts (the command line prints them)."""
-    say = say or _silent
+    receives a message as each stage starts (the command line prints them; default: this module's logger,
+    ``seaice_jax.workflows.demo``, at INFO)."""
+    say = say or _log.info
     out_dir = Path(out_dir)
     with output_folder(out_dir, demo_may_replace(out_dir, overwrite)) as folder:
         say("geolocating a radar strip and the 1985 satellite image")

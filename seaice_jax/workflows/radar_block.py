@@ -5,6 +5,7 @@ Three steps: :func:`adjust_block` computes a :class:`BlockAnalysis` (nothing wri
 into text and :func:`write_block` into files. A failing project therefore leaves the output folder untouched.
 """
 
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -402,8 +403,7 @@ def _sequential_figures(result: BlockAnalysis, out: Path) -> list[Path]:
             files.append(plot_vectors(out / f"control_discrepancies_c{k}.png", where, internal[known] - where,
                                       f"Radar minus known position at the control points, {coverage.name}",
                                       "before the external adjustment (source 000, Figs 5 and 6)",
-                                      background=internal[np.isfinite(internal).all(axis=1)],
-                                      projection=result.project.plane))
+                                      background=internal[np.isfinite(internal).all(axis=1)]))
         if sequential.tie_before.size:
             files.append(plot_tie_discrepancies(out / f"tie_discrepancies_c{k}.png", sequential.tie_before,
                                                 sequential.tie_after))
@@ -428,15 +428,15 @@ def _drift_figures(result: BlockAnalysis, out: Path) -> list[Path]:
     for pair in result.drift:
         files.append(plot_vectors(out / f"drift_c{pair.second}.png", pair.start, pair.vectors.displacement,
                                   f"Drift {names[pair.first]} -> {names[pair.second]}", "source 000, Fig. 7",
-                                  covariances=pair.covariance, projection=result.project.plane))
+                                  covariances=pair.covariance))
         files.append(plot_vectors(out / f"relative_motion_c{pair.second}.png", pair.start, pair.rigid.residuals,
                                   "Relative motion after removing the general (rigid) drift", "source 000, Fig. 8",
-                                  covariances=pair.covariance, projection=result.project.plane))
+                                  covariances=pair.covariance))
     return files
 
 
-def _silent(message: str) -> None:
-    """A ``say`` that says nothing."""
+_log = logging.getLogger(__name__)
+"""Where :func:`run_block` reports its stages when no ``say`` is given (INFO)."""
 
 
 def write_block(result: BlockAnalysis, out_dir: str | os.PathLike, report: str | None = None) -> tuple[Path, ...]:
@@ -461,8 +461,9 @@ def run_block(project_path: str | os.PathLike, out_dir: str | os.PathLike, metho
               say: Callable[[str], None] | None = None) -> BlockRun:
     """Read the project, :func:`adjust_block` it, and :func:`write_block` its files into ``out_dir`` (one run, one
     folder: :func:`~seaice_jax.outputs.output_folder`; ``overwrite`` replaces an existing one whole); ``say``
-    receives a message as each stage starts (the command line prints them)."""
-    say = say or _silent
+    receives a message as each stage starts (the command line prints them; default: this module's logger,
+    ``seaice_jax.workflows.radar_block``, at INFO)."""
+    say = say or _log.info
     with output_folder(out_dir, overwrite, inputs=(project_path,)) as folder:
         say(f"reading {project_path}")
         project = read_project(project_path)

@@ -7,6 +7,7 @@ spans and subtrack pixel (the sensor and how the image was sampled) — and matc
 (:mod:`seaice_jax.imagery.coast_control`).
 """
 
+import logging
 import os
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -111,7 +112,8 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
             ``overlay`` (default: ``<image stem>_overlay.png`` beside ``json_path``, else in the current folder).
         auto_control: find control points on the coastline, from ``rough`` (needs ``image``); manual measurements,
             if given, join them in the final fit.
-        say: a callable for progress messages (``None``: silent).
+        say: a callable for progress messages (``None``: this module's logger, ``seaice_jax.workflows.rectify``, at
+            INFO).
 
     Raises:
         SeaiceError: bad input, naming the file or option.
@@ -120,7 +122,7 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
     from seaice_jax.outputs import output_file
     from seaice_jax.report.text import orbit_fit_json
 
-    say = say or (lambda message: None)
+    say = say or logging.getLogger(__name__).info
     if measurements is None and not auto_control:
         raise SeaiceError("give the control points' CSV (MEASUREMENTS), or --image with --auto-control")
     if auto_control and (image is None or rough is None):

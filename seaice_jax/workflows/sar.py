@@ -10,6 +10,7 @@ per grid point), ``geolocation.png`` (the grid on a polar stereographic map with
 """
 
 import csv
+import logging
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,6 +26,9 @@ from seaice_jax.geometry.state_vectors import StateVectorOrbit
 from seaice_jax.geometry.zero_doppler import ellipsoid_ground_point, ellipsoid_imaging_time_and_range
 from seaice_jax.io.sentinel1 import Sentinel1Annotation, read_annotation
 from seaice_jax.outputs import output_folder
+
+_log = logging.getLogger(__name__)
+"""Where the SAR workflows report their stages when no ``say`` is given (INFO)."""
 
 if TYPE_CHECKING:
     from seaice_jax.geometry.projections import MapGrid
@@ -136,10 +140,12 @@ def write_geolocation_csv(path: Path, check: GeolocationCheck) -> Path:
 
 
 def run_geolocate(annotation_path: FilePath, out_dir: FilePath, reference: FilePath | None = None,
-                  overwrite: bool = False, say: Callable[[str], None] = lambda _: None) -> GeolocateResult:
-    """``seaice sar geolocate``: read, check every grid point, write CSV, figure and report into ``out_dir``."""
+                  overwrite: bool = False, say: Callable[[str], None] | None = None) -> GeolocateResult:
+    """``seaice sar geolocate``: read, check every grid point, write CSV, figure and report into ``out_dir``;
+    ``say`` receives a message as each stage starts (default: this module's logger at INFO)."""
     from seaice_jax.report.figures import plot_sar_geolocation
 
+    say = say or _log.info
     annotation = read_annotation(annotation_path, reference)
     inputs = [annotation_path] + ([reference] if reference is not None else [])
     with output_folder(out_dir, overwrite, inputs=inputs) as folder:
@@ -274,7 +280,7 @@ class SarRemapResult:
 
 def run_sar_remap(annotation_path: FilePath, image_path: FilePath, out_dir: FilePath, spacing: float = 200.0,
                   height: float | None = None, orbit_sigma: float = 5.0, decimation: int = 1,
-                  overwrite: bool = False, say: Callable[[str], None] = lambda _: None) -> SarRemapResult:
+                  overwrite: bool = False, say: Callable[[str], None] | None = None) -> SarRemapResult:
     """``seaice sar remap``: a GRD (or stripmap) image onto the NSIDC polar stereographic grid by the exact
     zero-Doppler model: every cell centre -> azimuth time and slant range -> image line and pixel -> bilinear
     sample. Writes ``remapped.tif`` (float32 GeoTIFF, NaN outside the image), ``position_sigma.tif`` (m: the
@@ -285,12 +291,14 @@ def run_sar_remap(annotation_path: FilePath, image_path: FilePath, out_dir: File
         spacing: grid cell size, m. height: ellipsoidal height of the surface, m (default: the median of the
             geolocation grid's heights, the geoid there for a scene over the sea). orbit_sigma: the orbit's position
             σ per axis, m. decimation: the image keeps every ``decimation``-th line and sample of the product.
+            say: receives a message as each stage starts (default: this module's logger at INFO).
     """
     from seaice_jax.imagery.remap import resample
     from seaice_jax.io.products import write_geotiff
     from seaice_jax.io.sequence import read_image_file
     from seaice_jax.report.figures import crs_name, plot_remapped_sar
 
+    say = say or _log.info
     for name, value in (("--spacing", spacing), ("--orbit-sigma", orbit_sigma)):
         if not (np.isfinite(value) and value > 0):
             raise SeaiceError(f"{name} must be a positive number of metres, got {value}")
