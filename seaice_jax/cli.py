@@ -130,7 +130,7 @@ def _rectify(args) -> int:
         sigma_km=args.sigma, n_pixels=args.pixels, n_scans=args.scans, stations=args.stations, check=args.check,
         json_path=args.json, image=args.image, auto_control=args.auto_control, rough=rough, search=args.search,
         overlay=args.overlay, overwrite=args.overwrite, say=_stages(args))
-    _say(args, orbit_fit_report(result.fit, result.check, names=result.names))
+    _say(args, orbit_fit_report(result.fit, result.check_errors, names=result.names))
     for path in result.written:
         _say(args, f"wrote {path}")
     return EXIT_OK

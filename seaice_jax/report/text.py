@@ -3,8 +3,7 @@
 import numpy as np
 
 from seaice_jax import __version__
-from seaice_jax.adjust.engine.quality import global_test
-from seaice_jax.adjust.orbit.fit import OrbitFit, check_point_errors
+from seaice_jax.adjust.orbit.fit import OrbitFit
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS, Orbit, ScanModel
 
@@ -115,10 +114,12 @@ def scan_model_from_json(document: dict) -> tuple[ScanModel, np.ndarray | None]:
     return model, covariance
 
 
-def orbit_fit_json(fit: OrbitFit, check=None) -> dict:
+def orbit_fit_json(fit: OrbitFit, check_errors: dict[str, float] | None = None) -> dict:
     """The orbit-fit report as JSON-ready data (keys of the ``seaice rectify --json`` output): the report's numbers,
     the model with what rebuilds it and its covariance (``model``: :func:`scan_model_from_json`), the package
-    ``version``, the document's ``format`` and the ``units`` of its numbers (:data:`JSON_UNITS`)."""
+    ``version``, the document's ``format`` and the ``units`` of its numbers (:data:`JSON_UNITS`); ``check_errors``:
+    ``{check point id: ground error, km}`` (:func:`~seaice_jax.adjust.orbit.fit.check_point_errors`), ``None``: no
+    check points. Formats only: every number comes from ``fit`` and ``check_errors``."""
     dlat, dlon = fit.dlat_arcmin, fit.dlon_arcmin
     flag_1985, flag_w = fit.flagged_1985, fit.flagged_w_test()
     dev_lat, dev_lon = fit.dev_arcmin
@@ -145,20 +146,20 @@ def orbit_fit_json(fit: OrbitFit, check=None) -> dict:
                                                  strict=True)
         ],
     }
-    if check is not None:
-        errors = check_point_errors(fit.model, check)
+    if check_errors is not None:
+        errors = np.array(list(check_errors.values()), float)
         result["check_rmse_km"] = float(np.sqrt(np.mean(errors**2)))
-        result["check"] = [{"id": i, "error_km": float(e)} for i, e in zip(check.ids, errors, strict=True)]
+        result["check"] = [{"id": i, "error_km": float(e)} for i, e in check_errors.items()]
     return result
 
 
-def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
+def orbit_fit_report(fit: OrbitFit, check_errors: dict[str, float] | None = None, names=None) -> str:
     """The orbit-fit report in the layout of the 1985 line-printer output (source 001, Figure 3-3).
 
     Adds what the 1985 program could not give: parameter standard deviations, σ̂0 and the global test, w-tests
     with data-snooping flags, RMS ground distance, and check points reported separately.
     """
-    data = orbit_fit_json(fit, check)
+    data = orbit_fit_json(fit, check_errors)
     p, model, orbit = data["parameters"], fit.model, fit.model.orbit
     names = names or {}
     direction = "SOUTHWARD" if model.direction == "south" else "NORTHWARD"
@@ -198,14 +199,14 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
     lines.append(f"{'DEV':>63}{data['dev_lat_arcmin']:9.4f}{data['dev_lon_arcmin']:9.4f}")
     lines += ["", f"RMS GROUND DISTANCE AT THE STATIONS {data['rms_km']:.3f} KM"]
     if fit.adjustment is not None:
-        dof = fit.adjustment.degrees_of_freedom
-        if dof is not None and dof > 0:
-            _, p_value, accepted = global_test(fit.adjustment.sigma0**2, dof)
-            verdict = ("ACCEPTED" if bool(accepted) else "REJECTED: the control points disagree beyond their sigma"
+        dof, tested = fit.adjustment.degrees_of_freedom, fit.global_test()
+        if tested is not None:
+            p_value, accepted = tested
+            verdict = ("ACCEPTED" if accepted else "REJECTED: the control points disagree beyond their sigma"
                        if float(fit.adjustment.sigma0) > 1 else "REJECTED: the control points agree better than their "
                        "sigma says (the sigma are pessimistic)")
             lines.append(f"SIGMA0 {data['sigma0']:.3f} WITH {dof} DEGREES OF FREEDOM, GLOBAL TEST p = "
-                         f"{float(p_value):.3f} {verdict}")
+                         f"{p_value:.3f} {verdict}")
         else:
             lines.append("NO REDUNDANCY (as many unknowns as observations): SIGMA0 AND TESTS UNAVAILABLE")
         sigma = data["parameter_sigma"]
@@ -214,7 +215,7 @@ def orbit_fit_report(fit: OrbitFit, check=None, names=None) -> str:
     lines.append(f"METHOD {fit.method}, {fit.iterations} "
                  f"{'ITERATIONS' if fit.method == 'gauss-newton' else 'POSITION EVALUATIONS'}")
     lines.append("FLAGS: * beyond 3 arc minutes (the 1985 rule), W rejected by the w-test (alpha 0.001)")
-    if check is not None:
+    if check_errors is not None:
         lines += ["", f"CHECK POINTS (not used in the fit): RMSE {data['check_rmse_km']:.3f} KM"]
         lines += [f"  {c['id']:<8}{c['error_km']:8.3f} KM" for c in data["check"]]
     return "\n".join(lines)

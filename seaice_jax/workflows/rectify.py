@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.adjust.orbit.fit import OrbitFit, fit_scan_model
+from seaice_jax.adjust.orbit.fit import OrbitFit, check_point_errors, fit_scan_model
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import SIDEREAL_DAY
 from seaice_jax.geometry.scan import Orbit, ScanModel, satellite_orbit
@@ -23,7 +23,6 @@ from seaice_jax.imagery.coast_control import CoastControl, coast_control, fit_wi
 from seaice_jax.io.coastline import Coastline, coastline, outline_box
 from seaice_jax.io.sequence import read_image_file
 from seaice_jax.io.stations import check_in_image, control_points, read_agrid, read_measurements
-from seaice_jax.sensors.control import ControlPoints
 
 FilePath = str | os.PathLike
 """A file's path, as a string or a path object."""
@@ -84,13 +83,14 @@ class Rectification:
     """The result of :func:`run_rectify`.
 
     Attributes:
-        fit: the final fit. check: check points (``None``: none given). names: station names by id.
+        fit: the final fit. check_errors: ``{check point id: ground error of the fit there, km}`` (``None``: no
+            check points given). names: station names by id.
         automatic: the coastline matching (``None`` without ``--auto-control``). overlay: the coastline-overlay
             figure written (``None``: no image given). written: every file written.
     """
 
     fit: OrbitFit
-    check: ControlPoints | None
+    check_errors: dict[str, float] | None
     names: dict
     automatic: CoastControl | None
     overlay: Path | None
@@ -176,8 +176,10 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
             assert manual is not None
             fit = fit_scan_model(manual, orbit, direction=direction, n_pixels=n_pixels, n_scans=n_scans,
                                  method=method)
+        check_errors = None if checked is None else dict(zip(checked.ids, map(float, check_point_errors(
+            fit.model, checked)), strict=True))
         if staging is not None:
-            write_json(staging.path / staging.target.name, orbit_fit_json(fit, checked))
+            write_json(staging.path / staging.target.name, orbit_fit_json(fit, check_errors))
             written.append(staging.target)
         if figure_staging is not None and overlay_path is not None and image_path is not None:
             from seaice_jax.report.figures import plot_coastline_overlay
@@ -187,4 +189,4 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
             plot_coastline_overlay(figure_staging.path / figure_staging.target.name, data, fit.model, coast, control,
                                    title=f"{image_path.name}: coastline through the fitted model")
             written.append(overlay_path)
-    return Rectification(fit, checked, names, automatic, overlay_path, tuple(written))
+    return Rectification(fit, check_errors, names, automatic, overlay_path, tuple(written))

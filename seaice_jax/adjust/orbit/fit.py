@@ -24,7 +24,7 @@ import numpy as np
 
 from seaice_jax._shapes import pad, padded_to_bucket
 from seaice_jax.adjust.engine.lsq import Adjustment, Observations, Solver, least_squares, make_solver
-from seaice_jax.adjust.engine.quality import DEFAULT_ALPHA
+from seaice_jax.adjust.engine.quality import DEFAULT_ALPHA, global_test
 from seaice_jax.adjust.orbit.appendix_c import appendix_c_search
 from seaice_jax.errors import ComputationError, RankDeficiencyError, SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
@@ -176,9 +176,10 @@ the orbit's apex (its northernmost or southernmost point, the pole's side of a p
 beyond the apex, when no node puts every control point on the pass's own branch."""
 
 
-def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_pixels: int = 512,
-                  n_scans: int = 512, node_steps: int = 720) -> ScanModel:
-    """Starting values from the control points alone (no operator input).
+def initial_guess(control: ControlPoints, orbit: Orbit, direction: Direction, n_pixels: int, n_scans: int,
+                  node_steps: int = 720) -> ScanModel:
+    """Starting values from the control points alone (no operator input), for an image of ``n_pixels`` pixels by
+    ``n_scans`` scan lines.
 
     For each trial ascending node on a grid of ``node_steps`` (then refined around the best on as many), every
     control point's orbital angle η and scanner angle ψ follow in closed form (:func:`orbit_coordinates`); the
@@ -286,6 +287,15 @@ class OrbitFit:
         w = self.adjustment.standardized_residuals
         return np.asarray(w["latitude"]), np.asarray(w["longitude"])
 
+    def global_test(self, alpha: float = 0.05) -> tuple[float, bool] | None:
+        """``(p, accepted)`` of the global test of σ̂0² (χ², two-sided, at ``alpha``); ``None`` without redundancy
+        or for Appendix C."""
+        dof = None if self.adjustment is None else self.adjustment.degrees_of_freedom
+        if self.adjustment is None or dof is None or dof <= 0:
+            return None
+        _, p_value, accepted = global_test(self.adjustment.sigma0**2, dof, alpha)
+        return float(p_value), bool(accepted)
+
     def flagged_w_test(self, alpha=DEFAULT_ALPHA):
         """Stations whose latitude or longitude w-statistic exceeds the critical value (data snooping)."""
         flagged = np.zeros(len(self.control), bool)
@@ -330,14 +340,36 @@ def check_control_spread(control: ControlPoints, tolerance: float = LINE_TOLERAN
                               "control points off that line", unknowns)
 
 
-def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "auto", n_pixels: int = 512,
-                   n_scans: int = 512, method: str = "gauss-newton", search_options: dict | None = None) -> OrbitFit:
+def check_image_size(control: ControlPoints, n_pixels, n_scans) -> None:
+    """Refuse an image size that is not two whole numbers of at least 2, or control points outside the image of
+    ``n_pixels`` pixels by ``n_scans`` scan lines (1-based: 0.5 to ``n + 0.5`` covers every pixel's area).
+
+    Raises:
+        SeaiceError: naming the size and, for points outside, the first few of them with their pixel and scan.
+    """
+    for name, value in (("n_pixels", n_pixels), ("n_scans", n_scans)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 2:
+            raise SeaiceError(f"{name} must be a whole number of at least 2 (the image's size), got {value!r}")
+    pixel, scan = np.asarray(control.pixel, float), np.asarray(control.scan, float)
+    outside = np.flatnonzero(~((pixel >= 0.5) & (pixel <= n_pixels + 0.5) & (scan >= 0.5) & (scan <= n_scans + 0.5)))
+    if outside.size:
+        named = ", ".join(f"{control.ids[k]} (pixel {pixel[k]:g}, scan {scan[k]:g})" for k in outside[:3])
+        more = f" and {outside.size - 3} more" if outside.size > 3 else ""
+        raise SeaiceError(f"control point(s) {named}{more} lie outside the image of {n_pixels} pixels x {n_scans} "
+                          "scan lines (n_pixels, n_scans): give the image's own size")
+
+
+def fit_scan_model(control: ControlPoints, orbit: Orbit, *, n_pixels: int, n_scans: int, direction: str = "auto",
+                   method: str = "gauss-newton", search_options: dict | None = None) -> OrbitFit:
     """Fit the five scan-model unknowns of one image to its control points.
 
     Args:
         control: at least three points (more to have redundancy and quality control).
         orbit: the satellite's orbit (inclination, period, altitude H — 0 for curvature-corrected images —
             and the Earth day T_e).
+        n_pixels, n_scans: the image's size: pixels per scan line and scan lines (the scanner and orbital angle
+            spans run from the first to the last of them, so a wrong size scales the fitted spans). Required: the
+            1985 blow-ups were 512 x 512, other images are not.
         direction: ``"south"``, ``"north"`` or ``"auto"`` (fit both, keep the smaller RMS; a direction whose fit
             fails — a start past the horizon, no convergence — is left out, and the error is raised only if both fail).
         method: ``"gauss-newton"`` or ``"appendix_c"``.
@@ -346,7 +378,9 @@ def fit_scan_model(control: ControlPoints, orbit: Orbit, *, direction: str = "au
 
     Raises:
         RankDeficiencyError: naming the unknowns the control points cannot determine (too few, collinear).
+        SeaiceError: an image size that is not two whole numbers >= 2, or control points outside that image.
     """
+    check_image_size(control, n_pixels, n_scans)
     if direction not in ("south", "north", "auto"):
         raise SeaiceError(f"direction must be 'south', 'north' or 'auto', got {direction!r}")
     if method not in ("gauss-newton", "appendix_c"):
