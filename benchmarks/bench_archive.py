@@ -28,8 +28,8 @@ os.environ.setdefault("NPROC", "1")  # before JAX starts, here and in the worker
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import publish  # noqa: E402
 
+from seaice_jax import simulate_sequence  # noqa: E402
 from seaice_jax.io.sequence import write_sequence  # noqa: E402
-from seaice_jax.simulate.satellite import simulate_sequence  # noqa: E402
 from seaice_jax.timefmt import time_after  # noqa: E402
 from seaice_jax.workflows.simulated_sequence import SIMULATED_GRID  # noqa: E402
 

@@ -28,9 +28,9 @@ import scipy.optimize  # noqa: E402
 import scipy.sparse  # noqa: E402
 from _common import RESULTS, publish  # noqa: E402
 
+from seaice_jax import MEAN_RADIUS  # noqa: E402
 from seaice_jax.adjust.engine.problem import block_residuals  # noqa: E402
 from seaice_jax.adjust.radar import block  # noqa: E402
-from seaice_jax.geometry.earth import MEAN_RADIUS  # noqa: E402
 from seaice_jax.simulate.aircraft import FlightPlan, aidjex_scenario  # noqa: E402
 
 

@@ -18,8 +18,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
-from seaice_jax.geometry.earth import MEAN_RADIUS  # noqa: E402
-from seaice_jax.geometry.range_doppler import ground_point  # noqa: E402
+from seaice_jax import (
+    MEAN_RADIUS,  # noqa: E402
+    ground_point,  # noqa: E402
+)
 from seaice_jax.simulate.scenarios import figure_3_3_image  # noqa: E402
 
 R = MEAN_RADIUS

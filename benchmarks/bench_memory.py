@@ -26,15 +26,7 @@ from _common import publish  # noqa: E402
 
 from seaice_jax.adjust.radar.block import BlockOptions  # noqa: E402
 from seaice_jax.io.project import read_project  # noqa: E402
-from seaice_jax.memory import (  # noqa: E402
-    BUDGET_VARIABLE,
-    GIB,
-    block_peak,
-    film_peak,
-    remap_peak,
-    simulate_peak,
-    track_peak,
-)
+from seaice_jax.memory import BUDGET_VARIABLE, GIB, block_peak, film_peak, remap_peak, simulate_peak, track_peak  # noqa: E402
 from seaice_jax.workflows.radar_block import block_unknowns  # noqa: E402
 
 SEAICE = Path(sys.executable).with_name("seaice")

@@ -20,14 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
+from seaice_jax import OrbitFit, fit_scan_model  # noqa: E402
 from seaice_jax.adjust.orbit.appendix_c import appendix_c_search  # noqa: E402
-from seaice_jax.adjust.orbit.fit import (  # noqa: E402
-    OrbitFit,
-    control_args,
-    fit_scan_model,
-    initial_guess,
-    orbit_solver,
-)
+from seaice_jax.adjust.orbit.fit import control_args, initial_guess, orbit_solver  # noqa: E402
 from seaice_jax.simulate.satellite import noaa_image, perturb_known_positions, simulate_control_points  # noqa: E402
 
 

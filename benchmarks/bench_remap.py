@@ -24,9 +24,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import best_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
-from seaice_jax.geometry.projections import MapGrid, nsidc_polar_stereographic  # noqa: E402
-from seaice_jax.imagery.remap import remap, remap_exact, scan_maps, stack_models  # noqa: E402
-from seaice_jax.imagery.tracking import track  # noqa: E402
+from seaice_jax import (  # noqa: E402
+    MapGrid,
+    nsidc_polar_stereographic,
+    remap,  # noqa: E402
+    track,  # noqa: E402
+)
+from seaice_jax.imagery.remap import remap_exact, scan_maps, stack_models  # noqa: E402
 from seaice_jax.simulate.satellite import ice_scene, noaa_pass, render  # noqa: E402
 
 try:

@@ -32,17 +32,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import first_call_time, publish  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
-from seaice_jax._shapes import pad  # noqa: E402
-from seaice_jax.geometry.earth import geodetic_to_ecef, north_east  # noqa: E402
-from seaice_jax.geometry.zero_doppler import (  # noqa: E402
-    INVERSE_NEWTON_STEPS,
-    INVERSE_START_TIMES,
-    NEWTON_STEPS,
-    SPEED_OF_LIGHT,
+from seaice_jax import (  # noqa: E402  # noqa: E402
     ellipsoid_ground_point,
     ellipsoid_imaging_time_and_range,
+    geodetic_to_ecef,
+    north_east,
+    read_annotation,  # noqa: E402
 )
-from seaice_jax.io.sentinel1 import read_annotation  # noqa: E402
+from seaice_jax._shapes import pad  # noqa: E402
+from seaice_jax.geometry.zero_doppler import INVERSE_NEWTON_STEPS, INVERSE_START_TIMES, NEWTON_STEPS, SPEED_OF_LIGHT  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "sentinel1"
 FILES = sorted(DATA.glob("*.xml"))

@@ -48,18 +48,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import update_results  # noqa: E402
 
 import seaice_jax  # noqa: E402,F401
+from seaice_jax import (  # noqa: E402
+    ControlPoints,  # noqa: E402
+    SequenceOptions,
+    TiePoints,  # noqa: E402
+    adjust_sequence,
+)
 from seaice_jax.adjust import engine  # noqa: E402
 from seaice_jax.adjust.sequence.adjustment import (  # noqa: E402
-    SequenceOptions,
-    adjust_sequence,
     correlated_tie_covariance,
     phase_tie_covariance,
     sequence_problem,
     systematic_tie_covariance,
 )
 from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns  # noqa: E402
-from seaice_jax.imagery.ties import TieOptions, TiePoints, image_runs  # noqa: E402
-from seaice_jax.sensors.control import ControlPoints  # noqa: E402
+from seaice_jax.imagery.ties import TieOptions, image_runs  # noqa: E402
 from seaice_jax.simulate.satellite import noaa_pass  # noqa: E402
 
 SIZE = 256
