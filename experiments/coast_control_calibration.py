@@ -44,8 +44,8 @@ RESULTS = Path(__file__).with_name("results")
 
 def rectified(seed: int, scale: float) -> dict:
     """One image of ``seed`` rectified from its rough start: σ̂0, degrees of freedom, check-point RMS (pixels),
-    points kept and removed, and the kept points' true ground errors ``(n, 2)`` m (north, east) and stated σ
-    ``(n,)`` m."""
+    points kept and removed, the kept points' true ground errors ``(n, 2)`` m (north, east) and stated σ
+    ``(n,)`` m, and the final fit (an ``OrbitFit``) and the true model (used by ``experiments/calibration.py``)."""
     rng = np.random.default_rng([seed, 7])
     scene = ice_scene(np.random.default_rng(seed))
     coast = coastline_of_grid(scene.land)
@@ -69,7 +69,8 @@ def rectified(seed: int, scale: float) -> dict:
     return {"seed": seed, "direction": direction, "sigma0": float(adjustment.sigma0),
             "dof": int(adjustment.degrees_of_freedom), "check": check_rms(result.model, truth),
             "points": len(control), "removed": sum(len(r) for r in result.rejected), "error": error,
-            "sigma": np.broadcast_to(np.asarray(control.sigma, float), (len(control),))}
+            "sigma": np.broadcast_to(np.asarray(control.sigma, float), (len(control),)),
+            "fit": result.fit, "truth": truth}
 
 
 def collect(seeds, scale: float) -> list[dict]:
