@@ -140,27 +140,24 @@ def test_no_private_attribute_of_another_module():
     assert not problems, "\n".join(problems)
 
 
-def test_public_face_is_literal_complete_and_cheap():
-    """``seaice_jax.__all__`` is a literal list (static tools read it) whose every name resolves, with the user API
-    in it; importing the package loads neither OpenCV, matplotlib nor xarray."""
+def test_public_face_is_written_once_complete_and_cheap():
+    """The public names are written once, as the type checker's imports in ``seaice_jax/__init__.py`` (plus the
+    errors): ``__all__`` and the lazy table are exactly those, in that order (errors last), with the user API in
+    it; every name resolves; importing the package loads neither OpenCV, matplotlib nor xarray."""
     tree = ast.parse((PACKAGE / "__init__.py").read_text())
-    assignment = next(node for node in tree.body if isinstance(node, ast.Assign)
-                      and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets))
-    assert isinstance(assignment.value, ast.List)
-    names = [element.value for element in assignment.value.elts if isinstance(element, ast.Constant)]
-    assert len(names) == len(assignment.value.elts) == len(set(names))
+    checked = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
+    typed = [alias.name for node in checked.body if isinstance(node, ast.ImportFrom) for alias in node.names]
+    errors = [alias.name for node in tree.body
+              if isinstance(node, ast.ImportFrom) and node.module == "seaice_jax.errors" for alias in node.names]
+    import seaice_jax
+    names = list(seaice_jax.__all__)
+    assert names == typed + errors and len(names) == len(set(names))
+    assert list(seaice_jax._LAZY) == names
     assert {"fit_scan_model", "remap", "track", "simultaneous_block", "BlockOptions", "least_squares",
             "Observations", "RankDeficiencyError", "GeometryError", "SeaiceError", "MapGrid", "Projection",
             "NavigationSpline", "Trajectory", "simulate_sequence", "nsidc_polar_stereographic"} <= set(names)
-    # the three spellings of the public face agree: the lazy table, the type checker's imports and __all__
-    import seaice_jax
-    checked = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
-    typed = {(node.module, alias.name) for node in ast.walk(checked) if isinstance(node, ast.ImportFrom)
-             for alias in node.names}
-    lazy = {(module, name) for module, names in seaice_jax._SOURCES.items() for name in names}
-    assert typed == lazy, typed ^ lazy
-    assert set(names) == {name for _, name in lazy} | {"SeaiceError", "GeometryError", "RankDeficiencyError",
-                                                       "NotConvergedError"}
+    # readers first, errors last
+    assert names[0].startswith("read_") and names[-1].endswith("Error")
     script = ("import sys, seaice_jax as sj\n"
               "heavy = [m for m in ('cv2', 'matplotlib', 'xarray') if m in sys.modules]\n"
               "assert not heavy, heavy\n"
