@@ -19,7 +19,7 @@ from pathlib import Path
 # One BLAS thread unless the user says otherwise, set before NumPy loads OpenBLAS (the outputs import below): the
 # command's matrices are small (reduced normal systems of hundreds to a few thousand unknowns), and OpenBLAS's
 # threads competing with XLA's for a few busy cores made a 250 x 250 Cholesky 350 times slower (0.25 s against
-# 0.7 ms; README, «BLAS runs on one thread»).
+# 0.7 ms; docs/getting-started.md, «The command line»).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from seaice_jax import __version__  # noqa: E402
