@@ -4,6 +4,7 @@ vectors inside the frame, thinned and off the land, each scale stated once in th
 particulars: ellipses and arrows drawn at the scales their key states, colour bars with units, legends beside the
 data, the map decorations where they belong, extra formats written when asked."""
 
+import inspect
 import re
 from types import SimpleNamespace
 
@@ -220,6 +221,19 @@ def test_every_figure_can_be_published(kind):
         check_figure(fig)
     finally:
         plt.close(fig)
+
+
+def test_the_check_covers_every_figure_function():
+    """A figure function added to the package without a case above fails here."""
+    import seaice_jax.report.figures as figures
+    import seaice_jax.report.maps as maps
+
+    source = inspect.getsource(all_figures)
+    functions = [name for module in (figures, maps) for name, value in vars(module).items()
+                 if name.endswith("_figure") and not name.startswith("_") and inspect.isfunction(value)
+                 and value.__module__ == module.__name__]
+    assert len(functions) >= 13
+    assert [name for name in functions if f"{name}(" not in source] == []
 
 
 # ------------------------------------------------------------------------------------------------ scales and keys

@@ -1,11 +1,16 @@
 """The figures people look at, in one style. Each ``<name>_figure`` builds a matplotlib figure; ``plot_<name>``
 writes it as a PNG atomically and returns its path.
 
-The style every figure shares: constrained layout (titles, vector keys, legends and colour bars get their own room:
-nothing overprints), legends and vector keys outside the data axes, colour bars with units, map axes in kilometres
-of a named coordinate system (EPSG code or PROJ string), every symbol in a legend, and 95 % error ellipses drawn at
-a stated magnification when their true size would be invisible or would hide the vectors. PDF and/or SVG copies are
-written beside the PNG when the environment variable ``SEAICE_FIGURE_FORMATS`` lists them (e.g. ``pdf,svg``).
+The style every figure shares (checked on every figure by ``tests/figure_checks.py``): constrained layout, so
+titles, legends, keys and colour bars get their own room and no text overprints another or leaves the canvas; colour
+bars with units; every symbol in a legend; map axes in kilometres of a coordinate system named in words
+(:func:`crs_name`, e.g. "Polar stereographic north (EPSG:3413)", never a PROJ string). Vector maps (drift, box
+averages) hold every arrow tip and ellipse inside the frame, draw at most :data:`ARROWS_ACROSS` arrows across the
+map's width, leave out what starts on land, and state their scales once, in a key beside the map: a reference arrow
+and a reference 95 % ellipse (or ±1σ rectangle), each drawn exactly as large as on the map with the length it stands
+for (the ellipses at the arrows' scale, or at a stated multiple of it where that would leave them invisible or
+hiding the arrows); the key also counts the vectors left out. PDF and/or SVG copies are written beside the PNG when
+the environment variable ``SEAICE_FIGURE_FORMATS`` lists them (e.g. ``pdf,svg``).
 """
 
 import os
@@ -792,7 +797,8 @@ def sar_geolocation_figure(check) -> Figure:
     _kilometre_axes(ax_map, crs)
     _decorate(ax_map, projection)
     fig.colorbar(dots, ax=ax_map, label="horizontal difference from ESA (mm)", shrink=0.8)
-    ax_map.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), fontsize=7, frameon=False, ncol=2)
+    legend = ax_map.legend(loc="upper left", bbox_to_anchor=(0.0, -0.12), fontsize=7, frameon=False, ncol=2)
+    legend.legend_handles[1].set_color("0.4")  # type: ignore[union-attr]  # the points' colour is the bar's
     ax_map.set_title(f"{annotation.mission} {annotation.mode} {annotation.swath} {annotation.polarisation} "
                      f"{annotation.product_type}, {np.datetime_as_string(annotation.epoch, unit='D')}", fontsize=9)
     points = ax_diff.scatter(check.east * 1000.0, check.north * 1000.0, c=grid.pixel, s=9, cmap="plasma")
@@ -818,7 +824,8 @@ def plot_sar_geolocation(path: str | os.PathLike, check) -> Path:
 def remapped_sar_figure(image, grid, position_sigma, title: str) -> Figure:
     """A radar image remapped onto a map grid (left, grey, 1-99 % stretch, the coast as a line) beside the
     horizontal position σ of its cells (right, m), both in km of the grid's projection with graticule and scale."""
-    fig, (ax_image, ax_sigma) = _figure(11.0, 5.2, 1, 2)
+    aspect = grid.n_rows * float(grid.pixel_height) / (grid.n_columns * float(grid.pixel_width))
+    fig, (ax_image, ax_sigma) = _figure(11.0, float(np.clip(3.9 * aspect + 1.3, 3.5, 9.0)), 1, 2)
     left = float(grid.x_first) - 0.5 * float(grid.pixel_width)
     top = float(grid.y_first) + 0.5 * float(grid.pixel_height)
     extent = (left, left + grid.n_columns * float(grid.pixel_width), top - grid.n_rows * float(grid.pixel_height),
