@@ -10,6 +10,7 @@ import pytest
 
 from seaice_jax.adjust.radar.block import BlockOptions, image_sigmas
 from seaice_jax.adjust.radar.layout import block_unknowns, mark_weight
+from seaice_jax.adjust.radar.navigation_basis import navigation_basis
 from seaice_jax.sensors.slar import imaging_time
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, simulate_flight
 
@@ -91,3 +92,57 @@ def test_the_image_x_sigma_carries_the_time_marks_jitter(flights):
     sigma = image_sigmas(options, np.array([1.0, 0.5]))
     np.testing.assert_allclose(sigma[:, 0], np.hypot(0.04, [0.025, 0.025 * np.sqrt(0.5)]))
     np.testing.assert_allclose(sigma[:, 1], 0.04)
+
+
+STRIP_FLIGHTS = 200
+
+
+@pytest.fixture(scope="module")
+def strip_scope_truth():
+    """The true strip-scope navigation coefficients ``(F, strips, component, term)`` (offset, rate, Schuler sine,
+    cosine of each strip's own curve about its middle) of ``STRIP_FLIGHTS`` simulated flights with the INS errors
+    only (drift, Schuler oscillation, turns), flown an hour after take-off as in the AIDJEX scenario, and the
+    strip-scope priors ``(strips, component, term)`` the block gives them."""
+    errors = ErrorModel().only("drift_rate", "schuler_amplitude", "turn_perturbation")
+    truth = []
+    for k in range(STRIP_FLIGHTS):
+        records, strips = simulate_flight(PLAN, errors, np.random.default_rng(950_000 + k), take_off_time=3600.0)
+        flight = []
+        for record, strip in zip(records, strips, strict=True):
+            basis, _ = navigation_basis("schuler", record.record_times, (record.start_time, record.end_time))
+            flight.append(np.linalg.lstsq(basis, strip.navigation_error, rcond=None)[0].T)  # (component, term)
+        truth.append(flight)
+    coverage = SimpleNamespace(name="day 0", strips=records)
+    names, sigma, _, _, q = block_unknowns([coverage], BlockOptions(navigation_scope="strip"))
+    navigation = [i for i, name in enumerate(names) if " navigation " in name]
+    assert q == 4 and len(navigation) == PLAN.strips * 2 * q
+    return np.array(truth), sigma[navigation].reshape(PLAN.strips, 2, q)
+
+
+def test_the_strip_scope_priors_are_the_errors_the_simulator_draws(strip_scope_truth):
+    """Strip scope: each strip's own offset is the INS error accumulated by its middle (drift since take-off and the
+    turns' random walk), so its prior grows along the flight; the Schuler terms have the north and east channels'
+    own σ. On simulated flights the true coefficients over their prior σ have unit mean square per strip and per
+    component (tolerance: 4 standard errors over the flights, whose drift direction and Schuler phase are shared by
+    their strips). The model before (one offset σ 1.5 km for every strip, one Schuler σ 1.3 km) fails: the first
+    strip's offsets and the east Schuler terms at about 0.16 and 0.43."""
+    truth, sigma = strip_scope_truth
+    ratio = (truth / sigma[None]) ** 2  # (F, strips, component, term)
+
+    def check(values, expected=1.0):
+        per_flight = values.reshape(values.shape[0], -1).mean(axis=1)
+        tolerance = 4 * per_flight.std(ddof=1) / np.sqrt(per_flight.size)
+        return abs(per_flight.mean() - expected) < tolerance, per_flight.mean(), tolerance
+
+    for strip in (0, PLAN.strips // 2, PLAN.strips - 1):
+        for component in range(2):
+            ok, mean, tolerance = check(ratio[:, strip, component, 0])
+            assert ok, f"strip {strip} component {component}: offsets' mean square {mean:.2f} (±{tolerance:.2f})"
+    for component in range(2):
+        for term in (1, 2, 3):
+            ok, mean, tolerance = check(ratio[:, :, component, term])
+            assert ok, f"component {component} term {term}: mean square {mean:.2f} (±{tolerance:.2f})"
+
+    before = (truth / np.array([1500.0, 130.0, 1300.0, 1300.0])) ** 2  # issue 12's strip-scope priors
+    assert not check(before[:, 0, 0, 0])[0]
+    assert not check(before[:, :, 1, 2:])[0]

@@ -134,19 +134,23 @@ def block_unknowns(coverages, options):
     offset_sigma = offset if offset is not None else np.inf
     shape = options.resolved_shape_prior()
     shape_sigma = shape if shape is not None else np.inf
-    schuler_sigma = options.schuler_prior if options.schuler_prior is not None else shape_sigma
-    shape = {"constant": [], "linear": [shape_sigma], "schuler": [shape_sigma, schuler_sigma, schuler_sigma]}.get(
-        model, [])  # prior σ of the coefficients after the offset (the spline's values all take the offset's)
+    schuler = np.broadcast_to(np.asarray(options.schuler_prior if options.schuler_prior is not None
+                                         else shape_sigma, float), 2)  # north, east
+    # prior σ of the coefficients after the offset, per component (the spline's values all take the offset's)
+    shapes = {component: {"constant": [], "linear": [shape_sigma],
+                          "schuler": [shape_sigma, schuler[k], schuler[k]]}.get(model, [])
+              for k, component in enumerate(_COMPONENTS)}
     turn_sigma = options.turn_prior if options.turn_prior is not None else np.inf
     flight = options.navigation_scope == "flight"
     shared_radar = None
     q = None
     for c, coverage in enumerate(coverages):
         flown = (min(s.start_time for s in coverage.strips), max(s.end_time for s in coverage.strips))
+        if options.take_off_time is not None and options.take_off_time > flown[0]:
+            raise SeaiceError(f"coverage {coverage.name!r}: take_off_time {options.take_off_time} s is after its "
+                              f"first strip starts ({flown[0]} s)")
+        first_start = flown[0]
         if flight and options.take_off_time is not None:
-            if options.take_off_time > flown[0]:
-                raise SeaiceError(f"coverage {coverage.name!r}: take_off_time {options.take_off_time} s is after its "
-                                  f"first strip starts ({flown[0]} s)")
             flown = (options.take_off_time, flown[1])
         shared = {}  # flight scope: the coefficients after the offset, one set per coverage and component
         last_turn = {}  # flight scope: the previous strip's turn offset, per component
@@ -161,17 +165,21 @@ def block_unknowns(coverages, options):
             label = f"{coverage.name}/{strip.name}"
             terms = coefficient_names.get(model, [f"spline[{k}]" for k in range(q)])
             navigation = []
+            if not flight:  # the strip's own offset: the error accumulated by its middle, j turns after the first
+                accumulated = options.accumulated_offset_prior(0.5 * (strip.start_time + strip.end_time), j,
+                                                               first_start)
+                offset_sigma = accumulated if accumulated is not None else np.inf
             for component in _COMPONENTS:
                 if not flight:
                     navigation += range(len(names), len(names) + q)
                     names += [f"{label} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shape
+                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shapes[component]
                     previous += [-1] * q
                     continue
                 if component not in shared:
                     shared[component] = list(range(len(names), len(names) + q - 2))
                     names += [f"{coverage.name} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] + shape
+                    prior += [offset_sigma] + shapes[component]
                     previous += [-1] * (q - 2)
                 navigation += [len(names), *shared[component], len(names) + 1]
                 # the turns' perturbations add up along the flight (a random walk): each turn's perturbation, the
