@@ -18,7 +18,7 @@ from matplotlib.quiver import Quiver
 from matplotlib.text import Text
 from scipy.spatial import KDTree
 
-from seaice_jax.drift.kinematics import box_averages
+from seaice_jax.drift.kinematics import BoxAverages, box_averages
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.crs import CrsProjection
 from seaice_jax.geometry.projections import (
@@ -172,6 +172,15 @@ def all_figures():
         "control discrepancies": lambda: vectors_figure(block[:3], drift[:3] / 20, "Radar minus known position",
                                                         "before the external adjustment", background=block,
                                                         projection=plane),
+        "drift, nothing tracked": lambda: vectors_figure(positions[:0], vectors[:0], "Tracked drift", "none good",
+                                                         background=positions, projection=projection),
+        "drift, most vectors on land": lambda: vectors_figure(positions[100:103], vectors[100:103], "Drift", "on land",
+                                                              covariances=sigma[:3], projection=projection),
+        "drift, some vectors missing": lambda: vectors_figure(
+            positions, np.where(np.arange(len(x))[:, None] % 3, vectors, np.nan), "Drift", "NaN rows",
+            covariances=sigma, projection=projection),
+        "box averages, none": lambda: box_averages_figure(BoxAverages(*[np.zeros(0)] * 6, np.zeros(0, int)), "Boxes",
+                                                          background=positions, projection=projection),
         "box averages": lambda: box_averages_figure(boxes, "Box-averaged velocity (75 km boxes)",
                                                     background=positions, projection=projection),
         "trajectories": lambda: trajectories_figure(np.repeat(np.arange(x.size), 3), np.repeat(x, 3) + np.tile(

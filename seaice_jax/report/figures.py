@@ -246,14 +246,17 @@ def _points(values) -> np.ndarray:
     return values[np.isfinite(values).all(axis=1)]
 
 
-def _frame(*point_sets, margin: float = 0.04) -> tuple[float, float, float, float]:
-    """``(x0, x1, y0, y1)``: the box of all finite points, widened by ``margin`` of its larger side."""
+def _frame(*point_sets, margin: float = 0.04, shape: float = 0.25) -> tuple[float, float, float, float]:
+    """``(x0, x1, y0, y1)``: the box of all finite points, widened by ``margin`` of its larger side, and its smaller
+    side to at least ``shape`` of the larger (points along a line still make a map)."""
     points = np.concatenate([_points(p) for p in point_sets])
     if not points.size:
         return -1.0, 1.0, -1.0, 1.0
     low, high = points.min(axis=0), points.max(axis=0)
     pad = max(margin * float(np.max(high - low)), 1.0)
-    return low[0] - pad, high[0] + pad, low[1] - pad, high[1] + pad
+    low, high = low - pad, high + pad
+    centre, half = (low + high) / 2, np.maximum((high - low) / 2, shape * float(np.max(high - low)) / 2)
+    return centre[0] - half[0], centre[0] + half[0], centre[1] - half[1], centre[1] + half[1]
 
 
 def _map_figure(frame, width: float = 8.5, side: float = 2.4) -> tuple[Figure, Any, Any]:
@@ -486,13 +489,15 @@ def vectors_figure(positions, vectors, title: str, label: str, background=None,
                    gid=BACKGROUND_GID)
     _quiver(ax, positions[shown], vectors[shown], scale, "vector")
     rows: list[tuple[Any, str]] = [(_arrow_patch(ax, _nice(reference) / scale), _length_text(_nice(reference), "m"))]
-    if covariances is not None:
-        for k in shown[np.isfinite(major[shown])]:
+    drawn = shown[np.isfinite(major[shown])] if covariances is not None else shown[:0]
+    if drawn.size:
+        for k in drawn:
             ax.add_patch(Ellipse(tuple(tips[k]), 2 * factor * float(major[k]) / scale,
                                  2 * factor * float(minor[k]) / scale, angle=float(np.degrees(angle[k])),
                                  fill=False, color="C3", lw=0.6, gid=ELLIPSE_GID, zorder=2.9))
         ax.plot([], [], color="C3", lw=0.6, label="95 % error ellipse")
-        typical = _nice(float(np.nanmedian(major[shown]))) if np.isfinite(major[shown]).any() else reference
+    if drawn.size and np.median(major[drawn]) > 0:
+        typical = _nice(float(np.median(major[drawn])))
         radius = factor * typical / scale
         rows.append((Ellipse((0.0, 0.0), 2 * radius, 2 * radius, fill=False, color="C3", lw=0.6),
                      f"95 % ellipse, semi-axis {_length_text(typical, 'm')}"
@@ -611,11 +616,12 @@ def box_averages_figure(boxes, title: str, background=None, projection=None) -> 
     typical = _nice(float(np.median(sigma[shown])) * per_day) if shown.size and np.median(sigma[shown]) > 0 \
         else _nice(reference * per_day)
     half = factor * typical / per_day / scale
-    rows = [(_arrow_patch(ax, _nice(reference * per_day) / per_day / scale),
-             _length_text(_nice(reference * per_day), "km/day")),
-            (Rectangle((-half, -half), 2 * half, 2 * half, fill=False, color="C3", lw=0.8),
-             f"±1σ of {_length_text(typical, 'km/day')}"
-             + ("" if factor == 1.0 else f"\n(rectangles {factor:g}× the arrows' scale)"))]
+    rows: list[tuple[Any, str]] = [(_arrow_patch(ax, _nice(reference * per_day) / per_day / scale),
+                                    _length_text(_nice(reference * per_day), "km/day"))]
+    if shown.size:
+        rows.append((Rectangle((-half, -half), 2 * half, 2 * half, fill=False, color="C3", lw=0.8),
+                     f"±1σ of {_length_text(typical, 'km/day')}"
+                     + ("" if factor == 1.0 else f"\n(rectangles {factor:g}× the arrows' scale)")))
     _key(ax, panel, rows, _thinned_note(len(positions), int((~sea).sum()), len(np.flatnonzero(sea)) - len(shown),
                                  "boxes"))
     _decorate(ax, projection, coast=coast)
