@@ -14,9 +14,10 @@ own with ``--rows``):
   their true ground error, and the rectified model's position σ at 25 check pixels against its true error; σ̂0 and
   the global test of the final fits (after data snooping: the w-test removals are reported, but they remove real
   mismatches too, so they are not a false-alarm rate).
-* **block** — radar blocks of ``experiments/block_statistics.py`` (its :func:`block_statistics`, default
-  ``BlockOptions``): stated: the adjusted stations', all points' and drift vectors' covariance against the truth;
-  σ̂0, global test, the w-test alarms per testable observation by group (its ``summarize``).
+* **block**, **block_strip** — radar blocks of ``experiments/block_statistics.py`` (its :func:`block_statistics`,
+  default ``BlockOptions`` of the flight and the strip navigation scope): stated: the adjusted stations', all
+  points' and drift vectors' covariance against the truth; σ̂0, global test, the w-test alarms per testable
+  observation by group (as its ``summarize`` counts them).
 * **sequence** — image sequences of ``experiments/sequence_block.py`` (its :func:`realization`, without tracking):
   the simultaneous adjustment with 12 control points per image; stated: the drift σ due to the models
   (``displacement_sigma`` of the joint covariance) against the exact drift error at every pack-ice cell.
@@ -59,8 +60,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 RESULTS = Path(__file__).with_name("results")
 CACHE = RESULTS / ".cache"
 FIRST_SEED = 50_000
-ROW_OFFSET = {"orbit": 0, "coast": 1000, "block": 2000, "sequence": 3000, "tracking": 4000, "deformation": 5000}
-DEFAULT_SEEDS = {"orbit": 500, "coast": 30, "block": 30, "sequence": 5, "tracking": 30, "deformation": 200}
+ROW_OFFSET = {"orbit": 0, "coast": 1000, "block": 2000, "block_strip": 2500, "sequence": 3000, "tracking": 4000,
+              "deformation": 5000}
+DEFAULT_SEEDS = {"orbit": 500, "coast": 30, "block": 100, "block_strip": 100, "sequence": 5, "tracking": 30,
+                 "deformation": 200}
 QUICK_SEEDS = 3
 BAND = (0.9, 1.1)
 GLOBAL_BAND = (0.03, 0.07)
@@ -72,6 +75,8 @@ RESAMPLES = 2000
 CHECK_PIXELS = 25
 _cache_dir = CACHE
 _revisions: dict = {}
+_timing: dict = {}
+"""``{row: [(seconds, load average)]}`` of the realizations used in this run, as recorded when computed."""
 """``{row: {revision: [seeds]}}`` of the realizations used in this run."""
 
 
@@ -165,12 +170,14 @@ def revision() -> str:
 
 def cached(row: str, seed: int, compute):
     """``compute(seed)`` (a dict), kept in the cache as ``<row>/<seed>.pkl`` (and read from there when present),
-    with the :func:`revision` it was computed at."""
+    with the :func:`revision` it was computed at, its seconds and the load average (1 min) at its end."""
     path = _cache_dir / row / f"{seed}.pkl"
     if path.exists():
         with open(path, "rb") as file:
             return pickle.load(file)
-    value = {**compute(seed), "revision": revision()}
+    begin = time.perf_counter()
+    value = compute(seed)
+    value.update(revision=revision(), seconds=time.perf_counter() - begin, load=os.getloadavg()[0])
     path.parent.mkdir(parents=True, exist_ok=True)
     (_cache_dir / ".gitignore").write_text("*\n")
     temporary = path.with_suffix(".tmp")
@@ -191,6 +198,7 @@ def realizations(row: str, seeds, compute, deadline: float | None = None) -> lis
         begin = time.perf_counter()
         out.append({**cached(row, seed, compute), "seed": seed})
         _revisions.setdefault(row, {}).setdefault(out[-1].get("revision", "not recorded"), []).append(seed)
+        _timing.setdefault(row, []).append((out[-1].get("seconds", np.nan), out[-1].get("load", np.nan)))
         print(f"{row} {seed}: {time.perf_counter() - begin:.1f} s", flush=True)
     return out
 
@@ -302,13 +310,14 @@ def row_coast(seeds, quick: bool = False, deadline=None) -> list[dict]:
 
 # ------------------------------------------------------------------------------------------------------- block
 
-def block_realization(seed: int) -> dict:
-    """One blunder-free block of ``experiments/block_statistics.py`` with the default ``BlockOptions``."""
+def block_realization(seed: int, scope: str = "flight") -> dict:
+    """One blunder-free block of ``experiments/block_statistics.py`` with the default ``BlockOptions`` of the
+    navigation ``scope``."""
     from block_statistics import block_statistics
 
     from seaice_jax.adjust.radar.options import BlockOptions
 
-    return block_statistics(seed, BlockOptions())
+    return block_statistics(seed, BlockOptions(navigation_scope=scope))
 
 
 def _diagonal_normalized(errors, covariances) -> np.ndarray:
@@ -317,14 +326,12 @@ def _diagonal_normalized(errors, covariances) -> np.ndarray:
     return e / sigma
 
 
-def row_block(seeds, quick: bool = False, deadline=None) -> list[dict]:
-    from seaice_jax.adjust.radar.options import BlockOptions
-
-    runs = realizations("block", seeds, block_realization, deadline)
+def row_block(seeds, quick: bool = False, deadline=None, scope: str = "flight") -> list[dict]:
+    name = "block" if scope == "flight" else f"block_{scope}"
+    runs = realizations(name, seeds, lambda seed: block_realization(seed, scope), deadline)
     if not runs:
         return []
     done = [r["seed"] for r in runs]
-    scope = BlockOptions().navigation_scope
     tests = dict(sigma0=[float(r["sigma0"]) for r in runs], rejected=[not r["accepted"] for r in runs],
                  groups=summed_alarms(runs))
     labels = {"stations": "stations", "points": "all points", "drift": "drift vectors"}
@@ -439,8 +446,12 @@ def row_deformation(seeds, quick: bool = False, deadline=None) -> list[dict]:
     return out
 
 
-ROWS = {"orbit": row_orbit, "coast": row_coast, "block": row_block, "sequence": row_sequence,
-        "tracking": row_tracking, "deformation": row_deformation}
+def row_block_strip(seeds, quick: bool = False, deadline=None) -> list[dict]:
+    return row_block(seeds, quick, deadline, scope="strip")
+
+
+ROWS = {"orbit": row_orbit, "coast": row_coast, "block": row_block, "block_strip": row_block_strip,
+        "sequence": row_sequence, "tracking": row_tracking, "deformation": row_deformation}
 
 
 # ------------------------------------------------------------------------------------------------------- table
@@ -476,10 +487,21 @@ def table(entries: list[dict]) -> list[str]:
     return lines + ([""] + notes if notes else [])
 
 
+def timing_text(row: str, times) -> str:
+    """``row: N min for k (median s each; load average a-b)`` of ``times``, a list of (seconds, load average)."""
+    seconds, load = np.array([t for t, _ in times], float), np.array([a for _, a in times], float)
+    text = f"{row}: {np.nansum(seconds) / 60:.1f} min for {len(times)}"
+    if np.isfinite(seconds).any():
+        text += f" (median {np.nanmedian(seconds):.1f} s each"
+        text += (f"; load average {np.nanmin(load):.0f}-{np.nanmax(load):.0f})" if np.isfinite(load).any()
+                 else "; load average not recorded)")
+    return text
+
+
 def main(argv=None):
     global _cache_dir
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--rows", default="orbit,coast,tracking,deformation,block,sequence",
+    parser.add_argument("--rows", default="orbit,coast,tracking,deformation,block,block_strip,sequence",
                         help="comma-separated: " + ", ".join(ROWS))
     parser.add_argument("--seeds", type=int, default=None, help="seeds per row (default: per row, "
                         + ", ".join(f"{k} {v}" for k, v in DEFAULT_SEEDS.items()) + ")")
@@ -516,10 +538,13 @@ def main(argv=None):
              "Empirical / stated: √mean(e²/σ²) over every coordinate of every realization; 90 % interval by "
              "resampling whole seeds. Global test: χ², two-sided, α = 0.05, target 3-7 %. w-test: α = 0.001, alarms "
              "per testable observation (redundancy > 1e-12), worst group, target ≤ 1.5 α.", "",
+             *(["**Smoke run** (--quick, 3 seeds a row): the verdicts below mean nothing.", ""] if args.quick else []),
              *table(entries), "",
              "Code the realizations were computed with (the package and experiments/): " + "; ".join(
                  f"{row}: " + ", ".join(f"{rev} ({len(seeds)} seeds)" for rev, seeds in revs.items())
-                 for row, revs in _revisions.items()) + ".", ""]
+                 for row, revs in _revisions.items()) + ".", "",
+             "Compute time of the realizations used (as recorded when each was computed, on the shared 2 cores): "
+             + "; ".join(timing_text(row, times) for row, times in _timing.items()) + ".", ""]
     text = "\n".join(lines)
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
