@@ -50,12 +50,12 @@ def main():
 
     # Gauss-Newton: the whole public call (initial guess + compile + solve + rank checks), then the warm solver
     start = time.perf_counter()
-    public = fit_scan_model(control, truth.orbit, direction="south")
+    public = fit_scan_model(control, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     public_seconds = time.perf_counter() - start
     start = time.perf_counter()
-    fit_scan_model(control, truth.orbit, direction="south")
+    fit_scan_model(control, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     public_warm_seconds = time.perf_counter() - start
-    guess = initial_guess(control, truth.orbit, "south")
+    guess = initial_guess(control, truth.orbit, "south", truth.n_pixels, truth.n_scans)
     solver = orbit_solver(control, guess, factorization="lapack")  # the fastest for one image at a time
     solve = jax.jit(lambda obs: solver(obs, fit_args))
     gn_compile = first_call_time(solve, observed)
@@ -80,7 +80,7 @@ def main():
 
     # Appendix C, as the manual tells the operator (two starts), compile included (one per search)
     start = time.perf_counter()
-    model, evaluations = appendix_c_search(control, truth.orbit, "south")
+    model, evaluations = appendix_c_search(control, truth.orbit, "south", truth.n_pixels, truth.n_scans)
     appendix_seconds = time.perf_counter() - start
     appendix_rms = OrbitFit(model, control, "appendix_c", evaluations).rms_km
 

@@ -68,7 +68,8 @@ def figure_3_3_section():
             "(1985) |"]
     for label, method in [("Gauss-Newton (auto direction)", "gauss-newton"), ("Appendix C (southbound)", "appendix_c")]:
         direction = "auto" if method == "gauss-newton" else "south"
-        fit, seconds = timed(lambda m=method, d=direction: fit_scan_model(control, orbit, direction=d, method=m))
+        fit, seconds = timed(lambda m=method, d=direction: fit_scan_model(control, orbit, direction=d, method=m,
+                                                                                          n_pixels=512, n_scans=512))
         model = fit.model
         dev = fit.dev_arcmin
         rows.append(f"| {label} | {float(model.subtrack_pixel):.1f} | {float(model.ascending_node) / DEG:.2f} | "
@@ -87,10 +88,13 @@ def simulation_section(count, rng):
         truth = noaa_image("south" if k % 2 == 0 else "north")
         n_points = int(rng.integers(5, 9))
         control, _, _ = simulate_control_points(truth, n_points, rng, 1000.0)
-        gn, gn_s = timed(lambda c=control, t=truth: fit_scan_model(c, t.orbit, direction=t.direction))
+        gn, gn_s = timed(lambda c=control, t=truth: fit_scan_model(c, t.orbit, direction=t.direction,
+                                                                   n_pixels=t.n_pixels, n_scans=t.n_scans))
         ac, ac_s = timed(lambda c=control, t=truth: fit_scan_model(c, t.orbit, direction=t.direction,
-                                                                   method="appendix_c"))
+                                                                   method="appendix_c", n_pixels=t.n_pixels,
+                                                                   n_scans=t.n_scans))
         estimates = fit_scan_model(control, truth.orbit, direction=truth.direction, method="appendix_c",
+                                   n_pixels=truth.n_pixels, n_scans=truth.n_scans,
                                    search_options={"initial_spans": None})
         row = (gn.rms_km, truth_error_km(gn.model, truth), gn.iterations, gn_s, ac.rms_km,
                truth_error_km(ac.model, truth), ac.iterations, ac_s, truth_error_km(estimates.model, truth))

@@ -18,10 +18,10 @@ def test_auto_survives_a_direction_whose_start_sees_past_the_horizon():
     orbit = satellite_orbit("NOAA-7")
     truth = ScanModel(np.radians(110.0), 256.0, np.radians(99.0), np.radians(20.0), np.radians(66.0), orbit, "south")
     control, _, _ = simulate_control_points(truth, 10, np.random.default_rng(0), 1000.0, margin=2.0)
-    wrong = initial_guess(control, orbit, "north")
+    wrong = initial_guess(control, orbit, "north", truth.n_pixels, truth.n_scans)
     latitude, _ = wrong.forward_unchecked(control.pixel, control.scan)
     assert np.isnan(np.asarray(latitude)).any()  # the wrong start really cannot be evaluated everywhere
-    fit = fit_scan_model(control, orbit, direction="auto")
+    fit = fit_scan_model(control, orbit, direction="auto", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert fit.model.direction == "south" and list(fit.alternatives) == ["south"]  # the northbound fit failed cleanly
     pixel, scan = np.meshgrid(np.linspace(1, 512, 5), np.linspace(1, 512, 5))
     fitted = np.stack([np.asarray(a) for a in fit.model.forward(pixel, scan)])
@@ -36,9 +36,10 @@ def test_appendix_c_on_two_points_is_refused_by_name(tmp_path, capsys):
     for direction in ("south", "auto"):
         with pytest.raises(RankDeficiencyError, match=r"2 control point\(s\) give 4 observations for the 5 unknowns: "
                                                       r"the observations cannot determine .*at least 3 points"):
-            fit_scan_model(control, truth.orbit, direction=direction, method="appendix_c")
+            fit_scan_model(control, truth.orbit, direction=direction, method="appendix_c",
+                           n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     with pytest.raises(RankDeficiencyError, match="cannot determine") as info:  # both directions: still by name
-        fit_scan_model(control, truth.orbit, direction="auto")
+        fit_scan_model(control, truth.orbit, direction="auto", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert info.value.parameters
     two = tmp_path / "two.csv"
     two.write_text("id,pixel,scan,lat,lon\nA,10,20,75,-80\nB,300,400,73,-78\n")

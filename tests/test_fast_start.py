@@ -121,9 +121,9 @@ def test_a_second_fit_with_as_many_control_points_compiles_nothing(count):
     rng = np.random.default_rng(18)
     first, second = (simulate_control_points(truth, n, rng, 500.0)[0] for n in (9, count))
     assert not np.allclose(np.asarray(first.pixel)[:9], np.asarray(second.pixel)[:9])
-    fit_scan_model(first, truth.orbit, direction="south")
+    fit_scan_model(first, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     with CompileCounter() as counter:
-        fit = fit_scan_model(second, truth.orbit, direction="south")
+        fit = fit_scan_model(second, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert counter.names == []
     assert float(fit.model.ascending_node) == pytest.approx(float(truth.ascending_node), abs=np.radians(0.05))
     assert fit.rms_km < 1.5
@@ -136,10 +136,10 @@ def test_a_northbound_fit_after_a_southbound_one_compiles_nothing():
     south = simulate_control_points(noaa_image("south"), 6, rng, 500.0)[0]
     truth = noaa_image("north")
     north = simulate_control_points(truth, 6, rng, 500.0)[0]
-    first = fit_scan_model(south, truth.orbit, direction="south")
+    first = fit_scan_model(south, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     _ = first.rms_km, first.dlon_arcmin, first.flagged_w_test()
     with CompileCounter() as counter:
-        fit = fit_scan_model(north, truth.orbit, direction="north")
+        fit = fit_scan_model(north, truth.orbit, direction="north", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
         _ = fit.rms_km, fit.dlon_arcmin, fit.flagged_w_test()
     assert counter.names == []
     assert float(fit.model.ascending_node) == pytest.approx(float(truth.ascending_node), abs=np.radians(0.05))

@@ -51,7 +51,7 @@ def check_near_printed_solution(fit, rms_limit):
 
 
 def test_figure_3_3_from_no_prior_knowledge():
-    fit = fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="auto")
+    fit = fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="auto", n_pixels=512, n_scans=512)
     check_near_printed_solution(fit, rms_limit=1.25)
     assert set(fit.alternatives) == {"south", "north"}
     assert fit.alternatives["south"] < fit.alternatives["north"]
@@ -61,7 +61,8 @@ def test_figure_3_3_from_no_prior_knowledge():
 
 
 def test_figure_3_3_appendix_c_baseline_reaches_a_solution():
-    fit = fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="south", method="appendix_c")
+    fit = fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="south", method="appendix_c",
+                         n_pixels=512, n_scans=512)
     check_near_printed_solution(fit, rms_limit=1.5)
     assert fit.adjustment is None and fit.iterations > 1000
 
@@ -72,7 +73,7 @@ def test_noise_free_simulation_recovers_the_truth_and_auto_finds_the_direction(d
     truth = noaa_image(direction, altitude)
     control, lat, lon = simulate_control_points(truth, 6, np.random.default_rng(3), 1000.0)
     exact = ControlPoints(control.pixel, control.scan, lat, lon, 1000.0, control.ids)
-    fit = fit_scan_model(exact, truth.orbit, direction="auto")
+    fit = fit_scan_model(exact, truth.orbit, direction="auto", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert fit.model.direction == direction
     for name in ("scanner_angle_span", "orbital_angle_first", "orbital_angle_span", "ascending_node"):
         assert float(getattr(fit.model, name)) == pytest.approx(float(getattr(truth, name)), abs=1e-8)
@@ -85,11 +86,14 @@ def test_appendix_c_on_a_simulation():
     program's C-1/C-2 estimates alone it diverges on this image."""
     truth = noaa_image("south")
     control, lat, lon = simulate_control_points(truth, 6, np.random.default_rng(5), 300.0)
-    fit = fit_scan_model(control, truth.orbit, direction="south", method="appendix_c")
+    fit = fit_scan_model(control, truth.orbit, direction="south", method="appendix_c",
+                         n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     estimates_only = fit_scan_model(control, truth.orbit, direction="south", method="appendix_c",
+                                    n_pixels=truth.n_pixels, n_scans=truth.n_scans,
                                     search_options={"initial_spans": None})
     assert estimates_only.rms_km > 100.0
-    gauss_newton = fit_scan_model(control, truth.orbit, direction="south")
+    gauss_newton = fit_scan_model(control, truth.orbit, direction="south",
+                                  n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert abs(float(fit.model.subtrack_pixel) - float(truth.subtrack_pixel)) < 15
     assert fit.rms_km < 1.0
     assert gauss_newton.rms_km <= fit.rms_km + 1e-9  # least squares minimises exactly what RMS measures
@@ -136,24 +140,25 @@ def test_quality_control_redundancy_and_a_planted_blunder():
     truth = noaa_image("south")
     rng = np.random.default_rng(21)
     control, lat, lon = simulate_control_points(truth, 8, rng, 500.0)
-    fit = fit_scan_model(control, truth.orbit, direction="south")
+    fit = fit_scan_model(control, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert fit.adjustment is not None
     total = sum(float(np.sum(r)) for r in fit.adjustment.redundancy.values())
     assert total == pytest.approx(fit.adjustment.degrees_of_freedom, abs=1e-9)
     blundered_lat = np.asarray(control.latitude).copy()
     blundered_lat[4] += 10 * 500.0 / float(truth.orbit.radius)
     bad = ControlPoints(control.pixel, control.scan, blundered_lat, control.longitude, 500.0, control.ids)
-    fit = fit_scan_model(bad, truth.orbit, direction="south")
+    fit = fit_scan_model(bad, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     w = np.maximum(*(np.abs(a) for a in fit.w_statistics()))
     assert fit.flagged_w_test()[4] and int(np.argmax(w)) == 4  # data snooping names P5 first
-    assert not fit_scan_model(control, truth.orbit, direction="south").flagged_w_test().any()
+    assert not fit_scan_model(control, truth.orbit, direction="south",
+                              n_pixels=truth.n_pixels, n_scans=truth.n_scans).flagged_w_test().any()
 
 
 def test_two_control_points_name_the_undetermined_parameters():
     truth = noaa_image("south")
     control, _, _ = simulate_control_points(truth, 2, np.random.default_rng(1))
     with pytest.raises(RankDeficiencyError, match="cannot determine") as info:
-        fit_scan_model(control, truth.orbit, direction="south")
+        fit_scan_model(control, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert set(info.value.parameters) <= {"scanner_angle_span", "subtrack_pixel", "orbital_angle_first",
                                           "orbital_angle_span", "ascending_node"}
     assert len(info.value.parameters) >= 2
@@ -166,7 +171,7 @@ def test_collinear_control_points_name_the_undetermined_parameters():
     lat, lon = (np.asarray(a) for a in truth.forward(pixel, scan))
     control = ControlPoints(pixel, scan, lat, lon, 500.0)
     with pytest.raises(RankDeficiencyError) as info:
-        fit_scan_model(control, truth.orbit, direction="south")
+        fit_scan_model(control, truth.orbit, direction="south", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert "orbital_angle_span" in info.value.parameters
 
 
@@ -178,7 +183,7 @@ def test_bad_control_points_are_named():
     with pytest.raises(SeaiceError, match="control point 2: scan is not a finite number"):
         ControlPoints([1, 2, 3], [1, np.nan, 3], [0.1, 0.2, 0.3], [0, 0, 0])
     with pytest.raises(SeaiceError, match="direction must be"):
-        fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="east")
+        fit_scan_model(figure_3_3_control(), FIGURE_3_3_ORBIT, direction="east", n_pixels=512, n_scans=512)
 
 
 def test_control_points_join_and_subset_keep_every_field_and_refuse_a_repeated_id():
@@ -201,7 +206,8 @@ def noisy_batch():
     truth = noaa_image("south")
     rng = np.random.default_rng(18)
     control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
-    solver = orbit_solver(control, fit_scan_model(control, truth.orbit, direction="south").model)
+    solver = orbit_solver(control, fit_scan_model(control, truth.orbit, direction="south",
+                                                  n_pixels=truth.n_pixels, n_scans=truth.n_scans).model)
     lats, lons = perturb_known_positions(lat, lon, 1000.0, rng, FIT_LANES)
     return solver, control_args(control), jnp.asarray(lats), jnp.asarray(lons)
 
@@ -246,7 +252,7 @@ def test_the_fits_stop_within_a_billionth_of_sigma_of_the_minimum():
     truth = noaa_image("south")
     rng = np.random.default_rng(7)
     control, lat, lon = simulate_control_points(truth, 7, rng, 1000.0)
-    start = initial_guess(control, truth.orbit, "south")
+    start = initial_guess(control, truth.orbit, "south", truth.n_pixels, truth.n_scans)
     lats, lons = (jnp.asarray(a) for a in perturb_known_positions(lat, lon, 1000.0, rng, FIT_LANES))
     stopped, strict = (vmapped_fits(orbit_solver(control, start, decrease_tolerance=tolerance), control_args(control),
                               lats, lons) for tolerance in (DECREASE_TOLERANCE, 1e-12))
@@ -264,8 +270,9 @@ def test_padding_the_control_points_changes_no_result():
     point's residual, redundancy number, w-statistic, MDB and w-partner."""
     truth = noaa_image("south")
     control, _, _ = simulate_control_points(truth, 6, np.random.default_rng(9), 800.0)
-    fit = fit_scan_model(control, truth.orbit, direction="south").adjustment
-    start = initial_guess(control, truth.orbit, "south")
+    fit = fit_scan_model(control, truth.orbit, direction="south",
+                         n_pixels=truth.n_pixels, n_scans=truth.n_scans).adjustment
+    start = initial_guess(control, truth.orbit, "south", truth.n_pixels, truth.n_scans)
     alone = least_squares(_predict, start, _observations(control, truth.orbit.radius), args=control_args(control),
                           free=free_mask(start), decrease_tolerance=DECREASE_TOLERANCE, strategy="damped")
     assert fit is not None and fit.degrees_of_freedom == alone.degrees_of_freedom == 2 * 6 - 5
@@ -289,10 +296,11 @@ def test_northbound_fit_is_the_direct_northbound_adjustment():
     from the control points' own northbound start (not from the answer)."""
     truth = noaa_image("north")
     control = simulate_control_points(truth, 8, np.random.default_rng(5), 800.0)[0]
-    fit = fit_scan_model(control, truth.orbit, direction="north")
+    fit = fit_scan_model(control, truth.orbit, direction="north", n_pixels=truth.n_pixels, n_scans=truth.n_scans)
     assert fit.model.direction == "north" and float(fit.model.orbital_angle_span) > 0
     assert fit.adjustment is not None
-    start = initial_guess(control, truth.orbit, "north")  # the northbound model itself, from the control's start
+    start = initial_guess(control, truth.orbit, "north",
+                          truth.n_pixels, truth.n_scans)  # the northbound model itself, from the control's start
     assert start.direction == "north"
     direct = orbit_solver(control, start)({"latitude": control.latitude, "longitude": control.longitude},
                                           control_args(control))

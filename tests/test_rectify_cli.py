@@ -90,6 +90,7 @@ def test_report_for_appendix_c_has_no_invented_statistics():
     truth = noaa_image("south")
     control, _, _ = simulate_control_points(truth, 6, np.random.default_rng(2), 500.0)
     fit = fit_scan_model(control, truth.orbit, direction="south", method="appendix_c",
+                         n_pixels=truth.n_pixels, n_scans=truth.n_scans,
                          search_options={"initial_spans": (5.0, 5.0), "start_subtrack": 128, "search_span": 256})
     data = orbit_fit_json(fit)
     assert data["sigma0"] is None and data["parameter_sigma"] == {}

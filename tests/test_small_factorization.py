@@ -172,7 +172,7 @@ def test_a_vmapped_batch_of_fits_matches_single_fits_and_the_lapack_autodiff_pat
     truth = noaa_image("south")
     control, latitude, longitude = simulate_control_points(truth, 7, rng, 1000.0)
     args = control_args(control)
-    guess = initial_guess(control, truth.orbit, "south")
+    guess = initial_guess(control, truth.orbit, "south", truth.n_pixels, truth.n_scans)
     solver = orbit_solver(control, guess)
     lats, lons = (jnp.asarray(a) for a in perturb_known_positions(latitude, longitude, 1000.0, rng, FIT_LANES))
     batch = vmapped_fits(solver, args, lats, lons)

@@ -256,7 +256,8 @@ def _orbit_fit(model: ScanModel, out_dir: Path):
     control = ControlPoints.from_degrees([s.pixel for s in stations], [s.scan for s in stations],
                                          [s.latitude_deg for s in stations], [s.longitude_deg for s in stations],
                                          1.0, [str(s.number) for s in stations])
-    fit = fit_scan_model(control, model.orbit, direction="auto")
+    fit = fit_scan_model(control, model.orbit, direction="auto", n_pixels=model.n_pixels,
+                         n_scans=model.n_scans)
     report = orbit_fit_report(fit, names={str(s.number): s.name for s in stations})
     report_path = out_dir / "orbit_fit_report.txt"
     with atomic_path(report_path) as temporary:

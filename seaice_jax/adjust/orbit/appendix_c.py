@@ -39,7 +39,7 @@ def _model(orbit, direction, n_pixels, n_scans, subtrack, beta_span, eta_first, 
                      jnp.radians(node), orbit, direction, n_pixels, n_scans)
 
 
-def appendix_c_search(control, orbit, direction, n_pixels=512, n_scans=512, start_subtrack=0.0,
+def appendix_c_search(control, orbit, direction, n_pixels, n_scans, start_subtrack=0.0,
                       search_span=2048, f_gamma=0.01, f_beta=0.01, initial_spans="auto"):
     """Run the Appendix C search. Returns ``(model, evaluations)`` (evaluations of the control positions).
 
@@ -47,6 +47,7 @@ def appendix_c_search(control, orbit, direction, n_pixels=512, n_scans=512, star
     arithmetic and the order of the steps are the 1985 procedure's.
 
     Args:
+        n_pixels, n_scans: the image's size, pixels per scan line and scan lines.
         start_subtrack, search_span: the binary search starts at this pixel with steps of half the span.
         f_gamma, f_beta: the adjustment factors (0.01 by default, as in 1985).
         initial_spans: ``(orbital, scanner)`` starting spans in degrees as an operator would enter them; ``None``
