@@ -81,7 +81,7 @@ def drawn_texts(fig) -> list:
 
 
 def _shown(text) -> bool:
-    """Whether every artist above ``text`` is visible (a hidden legend hides its texts)."""
+    """Whether the axes holding ``text`` (if any) is visible: a hidden axes draws none of its texts."""
     parent = getattr(text, "axes", None)
     return parent is None or parent.get_visible()
 
