@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import binary_erosion
 
 from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment, SequenceOptions, adjust_sequence
 from seaice_jax.errors import SeaiceError
@@ -54,6 +53,14 @@ class AdjustedSequence:
     adjustment: SequenceAdjustment | None = None
 
 
+
+def static_surface_interior(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with every cell whose four neighbours are not all in it removed (a binary erosion by the 3 x 3 cross,
+    cells beyond the edge counted out), so that a tie's patch never straddles the static surface's edge."""
+    padded = np.pad(mask, 1, constant_values=False)
+    return (padded[1:-1, 1:-1] & padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:])
+
+
 def static_mask_path(project: SequenceProject, static: str | os.PathLike | None) -> Path | None:
     """The static-surface mask: ``static``, else ``static_mask.npy`` or ``land_mask.npy`` beside the project (as
     ``seaice simulate lancaster`` writes them), else ``None``: the coastline's land is then the static surface
@@ -90,7 +97,7 @@ def adjust_project(project: SequenceProject, method: str = "simultaneous", stati
         return AdjustedSequence(names, start, covariance, sigma0, method, start)
     if static_mask is None:
         raise SeaiceError("the simultaneous method needs a static-surface mask")
-    mask = binary_erosion(np.asarray(static_mask, bool))
+    mask = static_surface_interior(np.asarray(static_mask, bool))
     given = [im.name for im in project.images if im.model is not None]
     if given:
         raise SeaiceError(f"the simultaneous method adjusts every image's scan model from control points and ties: "
