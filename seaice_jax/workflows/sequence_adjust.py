@@ -53,7 +53,6 @@ class AdjustedSequence:
     adjustment: SequenceAdjustment | None = None
 
 
-
 def static_surface_interior(mask: np.ndarray) -> np.ndarray:
     """``mask`` with every cell whose four neighbours are not all in it removed (a binary erosion by the 3 x 3 cross,
     cells beyond the edge counted out), so that a tie's patch never straddles the static surface's edge."""
