@@ -468,8 +468,10 @@ def report(summaries, blunders, budget, navigation, options, args, elapsed, load
                     continue
                 low, high = wilson(a, n)
                 block_low, block_high = s.get("alarm_interval", {}).get(group, (np.nan, np.nan))
+                # no alarm at all: resampled blocks have none either, no interval (the binomial one says more)
+                blocks = f"{block_low / W_ALPHA:.2f}-{block_high / W_ALPHA:.2f}" if a else "–"
                 cells.append(f"{a} / {n} = {a / n:.5f} ({a / n / W_ALPHA:.2f}; {low / W_ALPHA:.2f}-"
-                             f"{high / W_ALPHA:.2f}; {block_low / W_ALPHA:.2f}-{block_high / W_ALPHA:.2f})")
+                             f"{high / W_ALPHA:.2f}; {blocks})")
             row(group, cells, "≤ 1.5 α")
         row("image x, y over every image row (the count before issue 29)", [
             ", ".join(f"{s['every_row'][0][k] / s['every_row'][1]:.5f}" for k in range(2)) for s in values],

@@ -18,7 +18,7 @@ DENSE_LIMIT = 400
 SCOPE_OFFSET_PRIOR = {"flight": 530.0, "strip": 530.0}
 """Default σ (m) of the navigation offset at a flight's first strip, per scope: the INS drift before that strip (530 m
 per component: 0.75 km/h in an unknown direction over the hour from take-off; 600 m before issue 29's strip model,
-whose flight-scope residuals had 0.76-0.84 of their expected square sum). A flight's curve starts there; in strip
+whose flight-scope residuals had 0.75-0.84 of their expected square sum). A flight's curve starts there; in strip
 scope each later strip's own offset carries more, the drift and the turns' perturbations accumulated since
 (:meth:`BlockOptions.accumulated_offset_prior`: 0.6-2.3 km per component from 1 to 4 h after take-off with the
 defaults' INS and 300 m per turn). Before issue 29 the strip scope took one σ for every strip (2 km, then 1.5 km):
