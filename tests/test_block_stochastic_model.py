@@ -11,6 +11,7 @@ import pytest
 from seaice_jax.adjust.radar.block import BlockOptions, image_sigmas
 from seaice_jax.adjust.radar.layout import block_unknowns, mark_weight
 from seaice_jax.adjust.radar.navigation_basis import navigation_basis
+from seaice_jax.errors import SeaiceError
 from seaice_jax.sensors.slar import imaging_time
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, simulate_flight
 
@@ -146,3 +147,9 @@ def test_the_strip_scope_priors_are_the_errors_the_simulator_draws(strip_scope_t
     before = (truth / np.array([1500.0, 130.0, 1300.0, 1300.0])) ** 2  # issue 12's strip-scope priors
     assert not check(before[:, 0, 0, 0])[0]
     assert not check(before[:, :, 1, 2:])[0]
+
+
+@pytest.mark.parametrize("value", ["large", (1400.0, 850.0, 1.0), (-1.0, 850.0), 0.0])
+def test_a_schuler_prior_that_is_not_one_or_two_sigmas_is_refused(value):
+    with pytest.raises(SeaiceError, match="schuler_prior must be a σ in metres, a \\(north, east\\) pair"):
+        BlockOptions(schuler_prior=value)

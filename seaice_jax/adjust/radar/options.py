@@ -165,10 +165,14 @@ class BlockOptions:
             value = getattr(self, name)
             if isinstance(value, str) and value != "scope":
                 raise SeaiceError(f"{name} must be a σ in metres, None or 'scope', got {value!r}")
-        if self.schuler_prior is not None and not (np.size(self.schuler_prior) in (1, 2)
-                                                   and np.all(np.asarray(self.schuler_prior, float) > 0)):
-            raise SeaiceError(f"schuler_prior must be a σ in metres, a (north, east) pair of them or None, got "
-                              f"{self.schuler_prior!r}")
+        if self.schuler_prior is not None:
+            try:
+                schuler = np.asarray(self.schuler_prior, float)
+            except (TypeError, ValueError):
+                schuler = np.zeros(0)
+            if schuler.size not in (1, 2) or not np.all(schuler > 0):
+                raise SeaiceError(f"schuler_prior must be a σ in metres, a (north, east) pair of them or None, got "
+                                  f"{self.schuler_prior!r}")
         if self.drift_rate_prior is not None and not self.drift_rate_prior >= 0:
             raise SeaiceError(f"drift_rate_prior must be a σ in m/s (≥ 0) or None, got {self.drift_rate_prior!r}")
         if self.navigation_model not in ERROR_MODELS:
