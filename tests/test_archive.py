@@ -1,6 +1,6 @@
-"""Archives on Dask and Monte Carlo over devices (issue 17): a local Dask cluster writes the files of the
-single-process run (same numbers, bit for bit), a worker killed during the run has its task run again and the job
-completes, and realizations sharded over two host devices equal the unsharded ones."""
+"""Archives on Dask (issue 17): a local Dask cluster writes the files of the single-process run (same numbers, bit
+for bit), and a worker killed during the run has its task run again and the job completes. (Monte Carlo
+realizations sharded over devices: tests/test_sharded_vmap.py.)"""
 
 import json
 import os
@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import cast
 
@@ -21,7 +22,9 @@ from distributed import Client, LocalCluster
 
 from seaice_jax.cli import main
 from seaice_jax.errors import EXIT_USAGE, SeaiceError
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS
 from seaice_jax.imagery.tracking import GOOD, ON_LAND
+from seaice_jax.io.remapped import load_remapped, save_stack
 from seaice_jax.io.sequence import make_grid, read_sequence, write_sequence
 from seaice_jax.outputs import output_folder
 from seaice_jax.simulate.satellite import simulate_sequence
@@ -201,10 +204,27 @@ def _same_drift_outputs(expected: Path, actual: Path):
             assert (expected / name).read_bytes() == (actual / name).read_bytes(), name
 
 
+TRACKED_IMAGES = 3
+"""Images of the archive tracked on the cluster: two pairs, one per worker, and floes followed past the first pair
+(each pair writes its NetCDF files and figure: the 5 pairs of the whole archive cost 2.5 times as much)."""
+
+
+def _first_images(remapped: Path, count: int, folder: Path) -> Path:
+    """A `seaice remap` folder holding the first ``count`` images of the stack in ``remapped``."""
+    stack = load_remapped(remapped)
+    unknowns = len(SCAN_UNKNOWNS) * count
+    folder.mkdir()
+    save_stack(folder / "remapped.npz", replace(
+        stack, values=stack.values[:count], valid=stack.valid[:count], times=stack.times[:count],
+        names=stack.names[:count], models=stack.models[:count], covariance=stack.covariance[:unknowns, :unknowns],
+        sigma=stack.sigma[:count]))
+    return folder
+
+
 def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
     """Pairs as tasks on 2 worker processes, with a land mask and the OSI SAF layout: the files and every tracked
     array of the single-process ``run_track``, bit for bit."""
-    remapped = archive[1]
+    remapped = _first_images(archive[1], TRACKED_IMAGES, tmp_path / "remapped")
     land = np.zeros((80, 80), bool)
     land[:, :20] = True
     np.save(tmp_path / "land.npy", land)
@@ -213,7 +233,7 @@ def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
     dask = run_track_archive(remapped, tmp_path / "dask", workers=2, **options)
     assert [f.name for f in dask.files] == [f.name for f in single.files]
     _same_drift_outputs(tmp_path / "single", tmp_path / "dask")
-    assert len(dask.result.pairs) == IMAGES - 1 and dask.report == single.report
+    assert len(dask.result.pairs) == TRACKED_IMAGES - 1 and dask.report == single.report
     for a, b in zip(single.result.pairs, dask.result.pairs, strict=True):
         assert a.first == b.first and a.interval == b.interval
         for field in ("status", "x", "y", "dx", "dy", "sigma", "tracking_sigma", "correlation", "u_east", "v_north"):
@@ -224,7 +244,7 @@ def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
     for field in ("tracking_sigma", "correlation"):  # NaN at each floe's first fix
         assert np.array_equal(getattr(single.result.records, field), getattr(dask.result.records, field),
                               equal_nan=True), field
-    assert len(set(dask.result.records.image.tolist())) > 2  # floes followed past the first pair
+    assert len(set(dask.result.records.image.tolist())) == TRACKED_IMAGES  # floes followed past the first pair
 
 
 def test_bad_track_input_is_refused_before_the_cluster_starts(archive, tmp_path):
@@ -245,67 +265,6 @@ def test_bad_track_input_is_refused_before_the_cluster_starts(archive, tmp_path)
     assert main(["track", str(remapped), "--out", str(tmp_path / "out"), "--workers", "2", "--scheduler",
                  "tcp://127.0.0.1:1"]) == EXIT_USAGE
     assert not (tmp_path / "out").exists()
-
-
-_SHARDED = """
-import sys
-import jax, jax.numpy as jnp, numpy as np
-from seaice_jax import _config
-from seaice_jax.adjust.orbit.fit import orbit_solver
-from seaice_jax.adjust.engine.sharding import sharded_vmap
-from seaice_jax.geometry.scan import SCAN_UNKNOWNS
-from seaice_jax.simulate.satellite import overlapping_pair
-assert jax.local_device_count() == 2, jax.devices()
-
-def normal_solution(seed, scale):  # one linear least-squares realization (batched LAPACK under vmap)
-    design = jax.random.normal(jax.random.key(seed), (7, 3)) * scale
-    return jnp.linalg.solve(design.T @ design, design.T @ jnp.arange(7.0))
-
-seeds = jnp.arange(9)  # padded to 10 over the two devices
-linear = np.stack([np.asarray(jax.vmap(normal_solution, in_axes=(0, None))(seeds, 2.0)),
-                   np.asarray(sharded_vmap(normal_solution, in_axes=(0, None))(seeds, 2.0))])
-split = [shard.data.shape for shard in sharded_vmap(normal_solution, in_axes=(0, None))(
-    jnp.arange(10), 2.0).addressable_shards]
-
-# a Monte Carlo of the Gauss-Newton scan-model fit: noisy known positions, one fit per realization
-rng = np.random.default_rng(12)
-(first, _), (truth, _) = overlapping_pair(rng)
-primary = first.primary
-solve = orbit_solver(primary, truth)
-args = (primary.pixel, primary.scan, jnp.mean(primary.longitude))
-radius = float(first.orbit.radius)
-runs = 12
-latitude = np.asarray(primary.latitude) + rng.normal(size=(runs, len(primary))) * np.asarray(primary.sigma) / radius
-longitude = np.asarray(primary.longitude) + rng.normal(size=(runs, len(primary))) * np.asarray(primary.sigma) / (
-    radius * np.cos(np.asarray(primary.latitude)))
-fit = lambda lat, lon: solve({"latitude": lat, "longitude": lon}, args).parameters
-sharded = sharded_vmap(fit)(latitude, longitude)
-plain = jax.jit(jax.vmap(fit))  # the unsharded program, on each device's share of the realizations
-halves = [plain(latitude[k:k + runs // 2], longitude[k:k + runs // 2]) for k in (0, runs // 2)]
-
-
-def table(models):  # (unknowns, realizations)
-    return np.stack([np.concatenate([np.asarray(getattr(m, f)) for m in models]) for f in SCAN_UNKNOWNS])
-
-np.savez(sys.argv[1], linear=linear, split=np.array(split), sharded=table([sharded]), unsharded=table(halves))
-"""
-
-
-def test_sharded_realizations_equal_unsharded_on_two_host_devices(tmp_path):
-    """Two host devices need a subprocess (the device count is fixed when JAX starts). The XLA CPU runtime there
-    gets 4 threads (NPROC): two devices run their batched LAPACK kernels at once, and on a pool of fewer threads
-    than kernels plus one each waits for ever (the deadlock of seaice_jax._small_linalg's note)."""
-    out = tmp_path / "results.npz"
-    flags = "--xla_force_host_platform_device_count=2 --xla_cpu_multi_thread_eigen=false"
-    environment = {**os.environ, "NPROC": "4", "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} {flags}"}
-    subprocess.run([sys.executable, "-c", _SHARDED, str(out)], env=environment, check=True, timeout=400)
-    with np.load(out) as results:
-        linear, split, sharded, unsharded = (results[k] for k in ("linear", "split", "sharded", "unsharded"))
-    assert linear.shape == (2, 9, 3) and np.array_equal(linear[0], linear[1])  # bit for bit
-    assert split.tolist() == [[5, 3], [5, 3]]  # each device holds half the realizations
-    assert sharded.shape == (5, 12) and np.all(np.isfinite(sharded))
-    assert np.all(np.ptp(sharded, axis=1) > 0)  # twelve different realizations, not one repeated
-    np.testing.assert_allclose(sharded, unsharded, rtol=1e-12, atol=0)
 
 
 def test_the_overview_of_a_long_archive_shows_and_reads_twelve_images(tmp_path):
