@@ -40,10 +40,14 @@ Every realization is cached (``--cache``, default ``experiments/results/.cache/`
 so an interrupted run resumes and ``--table-only`` re-assembles the table from what is there. Writes
 experiments/results/calibration.md (``--out``).
 
-Run: ``.venv/bin/python experiments/calibration.py [--rows orbit,coast,tracking,deformation,block,sequence]
-[--seeds N] [--quick]``. Time on the shared 2 cores (load average 15-18 from other work): see the results file,
-which records each row's seconds and the load average; ``--quick`` (3 seeds per row) takes about 30 s for orbit and
-deformation.
+Run: ``.venv/bin/python experiments/calibration.py [--rows orbit,coast,tracking,deformation,block,block_strip,
+sequence] [--seeds N] [--quick] [--minutes M] [--table-only]``. A full run (the default seeds per row) took, on 2
+cores shared with about six other people's work (load average 18-29 by ``uptime``, this script at nice 10): orbit
+500 fits 5.5 min, coast 30 images 42 min, tracking 30 pairs 9 min, deformation 200 floe sets 15 s, radar blocks
+about 10 s each after a compilation of 3-8 min (100 per scope), sequences 6-28 min each (3 images of 256 x 256; the
+first with its compilations) — about 2.5 hours of wall time in all at that load, a fraction of it on a quiet
+machine. The results file records each row's compute time and, where recorded, the load average. ``--quick`` (3
+seeds per row) of orbit and deformation: about 15 s of CPU (2 min of wall time at load 20), as the test runs it.
 """
 
 import argparse
