@@ -1,5 +1,5 @@
 """Per image (1985) and chained (1985 multi-image practice) against simultaneous adjustment of simulated
-Lancaster-Sound-like sequences (issue 13).
+Lancaster-Sound-like sequences (issues 13 and 29).
 
 Each realization simulates a sequence of NOAA-7-like images (as ``experiments/lancaster_like.py``: 12 land control
 points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan models these ways:
@@ -20,10 +20,10 @@ points per image, pointing σ 0.5 / 1.0 pixel, map σ 500 m) and finds the scan 
   unknown, as an orbit prediction would give: no per-image fit is possible on two points). With none, the
   predicted models are the adjustment's priors (σ of the prediction); with 2 and 4 nothing else is known.
 
-For every control count also the stated σ with the ties' former systematic term (an affine field per image pair of
-η_o 13 / η_g 8 times its matches' own (XᵀWX)⁻¹, ``FORMER_PAIR_FIELDS``) in place of the phase-dependent bias
-(``SequenceOptions.tie_phase_sigma``, :func:`~seaice_jax.adjust.sequence.adjustment.phase_tie_covariance`), «former pair
-fields». For the 12-point case also: the stated σ without the ties' systematic error terms
+For every control count also the stated σ without the affine pair fields that issue 29 added beside the
+phase-dependent bias (``SequenceOptions.tie_offset_factor``, ``tie_gradient_factor``;
+:func:`~seaice_jax.adjust.sequence.adjustment.systematic_tie_covariance`), «phase term alone (before issue 29)».
+For the 12-point case also: the stated σ without the ties' systematic error terms
 (``SequenceAdjustment.systematic``, «independent tie errors»); the matcher's error against the truth, and the part
 of it common to each image pair (an affine field per pair and axis fitted to the true tie errors: the measurement
 behind ``SequenceOptions``' ``tie_offset_factor`` and ``tie_gradient_factor``); 5 % of the ties planted as
@@ -37,12 +37,21 @@ with e_k the model's position error there, so the tracked displacement is off by
 stated σ (``displacement_sigma`` with the pair's joint covariance and 0.2 pixel of tracking) against the empirical
 error.
 
+Seeds: the stochastic model's defaults were measured on seeds 100-109 (``tie_phase_sigma``) and 300-304, 326-329
+(the affine pair fields); the default run starts at seed 400, never tuned on. ``--cache DIR`` keeps each seed's
+matched ties (``DIR/ties_<seed>.pkl``, the two tie sets) so that a rerun of the adjustments and the covariances does
+not match again, and each finished realization (``DIR/run_<seed>.pkl``: several processes can share the seeds of one
+run, ``--cached-only`` then summarizes the seeds done; the cache holds what the code that wrote it computed: empty it
+after changing the code); ``--counts`` chooses the control-point sweep (2 is always run: the summary's 2-point
+lines) and ``--no-planted`` skips the planted-mismatch adjustment, to keep long runs within a shared machine's time.
+
 Writes experiments/results/sequence_block.md (``--out`` another file).
-Run: ``.venv/bin/python experiments/sequence_block.py [--realizations 10] [--first-seed 0] [--images 4]
-[--size 512] [--track]``.
+Run: ``.venv/bin/python experiments/sequence_block.py [--realizations 30] [--first-seed 400] [--images 4]
+[--size 512] [--counts 4,2,0] [--no-planted] [--cache DIR [--cached-only]] [--track]``.
 """
 
 import argparse
+import pickle
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -57,7 +66,6 @@ from seaice_jax.adjust.orbit.multi_image import sequential_fit
 from seaice_jax.adjust.sequence.adjustment import (
     SequenceOptions,
     adjust_sequence,
-    phase_tie_covariance,
     sequence_problem,
     systematic_tie_covariance,
 )
@@ -77,8 +85,6 @@ PREDICTION_SIGMA = np.array([2e-4, 0.5, 2e-4, 2e-4, 3e-4])
 """σ of the predicted models' unknowns (radians, pixel) for the 2-control-point case: about one pixel."""
 STATIC_MARGIN = 3000.0
 TRACKING_SIGMA = 0.2  # pixels of the map grid
-FORMER_PAIR_FIELDS = (13.0, 8.0)
-"""η_o, η_g of the affine pair fields the adjustment used before ``tie_phase_sigma`` (``SequenceOptions``)."""
 
 
 def static_surface(scene):
@@ -114,16 +120,28 @@ def apparent(scene, fitted, true, xy, size):
     return np.where(inside[:, None], out, np.nan)
 
 
-def former_covariance(result, size):
-    """``result``'s covariance with the ties' former systematic term (``FORMER_PAIR_FIELDS``: an affine field per
-    pair, no phase-dependent bias) in place of the phase-dependent one."""
+def phase_only_covariance(result, size):
+    """``result``'s covariance without the affine pair fields (``SequenceOptions`` ``tie_offset_factor``,
+    ``tie_gradient_factor``): the phase-dependent bias alone, as before issue 29."""
     problem, adjustment, observations = sequence_problem(result.observations), result.adjustment, result.observations
-    cofactor = np.asarray(result.cofactor)
+    options = SequenceOptions()
     sizes = np.full((observations.n_images, 2), size)
-    return (result.covariance
-            - phase_tie_covariance(problem, adjustment, observations, cofactor, SequenceOptions().tie_phase_sigma)
-            + systematic_tie_covariance(problem, adjustment, observations.reference_image, sizes, cofactor,
-                                        *FORMER_PAIR_FIELDS))
+    return result.covariance - systematic_tie_covariance(problem, adjustment, observations.reference_image, sizes,
+                                                         np.asarray(result.cofactor), options.tie_offset_factor,
+                                                         options.tie_gradient_factor)
+
+
+def matched_ties(cache, seed, match):
+    """``match()`` (the two tie sets of a seed), or what ``cache`` holds for ``seed`` (``None``: no cache)."""
+    path = None if cache is None else Path(cache) / f"ties_{seed}.pkl"
+    if path is not None and path.exists():
+        stored = pickle.loads(path.read_bytes())
+        return stored["ties"], stored["predicted_ties"]
+    ties, predicted_ties = match()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(pickle.dumps({"ties": ties, "predicted_ties": predicted_ties}))
+    return ties, predicted_ties
 
 
 def first_controls(control: ControlPoints, count: int) -> ControlPoints:
@@ -227,7 +245,7 @@ def plant_mismatches(ties, rng, fraction=0.05):
     return replace(ties, pixel=pixel, scan=scan), {int(t) for t in chosen}
 
 
-def realization(seed, images, tracked, size):
+def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, cache=None):
     rng = np.random.default_rng(20_000 + seed)
     sequence = simulate_sequence(seed, n_images=images, size=size, pointing_sigma=POINTING)
     scene = sequence.scene
@@ -240,8 +258,16 @@ def realization(seed, images, tracked, size):
             for im in sequence.images]
     per_image = [f.model for f in fits]
     blocks = [np.asarray(f.adjustment.covariance) for f in fits if f.adjustment is not None]
+    rng_matching = np.random.default_rng(20_000 + seed)  # the draws of plant_mismatches, then the prediction
+
+    def match():
+        found = find_ties(data, per_image, static, blocks)
+        plant_mismatches(found, rng_matching)
+        guess = [with_scan_unknowns(m, scan_unknowns(m) + rng_matching.normal(0, PREDICTION_SIGMA)) for m in truth]
+        return found, find_ties(data, guess, static, [np.diag(PREDICTION_SIGMA**2)] * images)
+
     started = time.time()
-    ties = find_ties(data, per_image, static, blocks)
+    ties, predicted_ties = matched_ties(cache, seed, match)
     tie_time = time.time() - started
     started = time.time()
     controls = [im.control for im in sequence.images]
@@ -249,17 +275,17 @@ def realization(seed, images, tracked, size):
     adjust_time = time.time() - started
     chained = chained_fit(sequence, ties, set(block12.removed_ties), controls, size)
     bad, planted = plant_mismatches(ties, rng)
-    planted_run = adjust_sequence(per_image, bad, controls)
+    planted_run = adjust_sequence(per_image, bad, controls) if planting else None
     theta_sigma = np.sqrt(np.diag(block12.covariance)).reshape(-1, 5)
     tie_error, tie_sigma, matched, rows = tie_errors(ties, truth)
     field = pair_fields(ties, tie_error, matched, rows, block12, size, SequenceOptions().tie_correlation)
     predicted = [with_scan_unknowns(m, scan_unknowns(m) + rng.normal(0, PREDICTION_SIGMA)) for m in truth]
-    predicted_ties = find_ties(data, predicted, static, [np.diag(PREDICTION_SIGMA**2)] * images)
     sweep = {count: adjust_sequence(predicted, predicted_ties, [first_controls(im.control, count)
                                                                 for im in sequence.images])
-             for count in (4, 2)}
-    sweep[0] = adjust_sequence(predicted, predicted_ties, [None] * images,
-                               prior_covariance=np.tile(PREDICTION_SIGMA, (images, 1)))
+             for count in counts if count > 0}
+    if 0 in counts:
+        sweep[0] = adjust_sequence(predicted, predicted_ties, [None] * images,
+                                   prior_covariance=np.tile(PREDICTION_SIGMA, (images, 1)))
     methods = {"per image, 12 control points": (per_image, block_diag(*blocks)),
                "chained, 12 control points": chained,
                "simultaneous, 12 control points, independent tie errors": (
@@ -267,9 +293,8 @@ def realization(seed, images, tracked, size):
                "simultaneous, 12 control points": (list(block12.models), block12.covariance)}
     methods.update({f"simultaneous, {count} control points": (list(result.models), result.covariance)
                     for count, result in sweep.items()})
-    methods.update({f"simultaneous, {count} control points, former pair fields": (list(result.models),
-                                                                                 former_covariance(result, size))
-                    for count, result in [(12, block12), *sweep.items()]})
+    methods.update({f"simultaneous, {count} control points, phase term alone (before issue 29)": (
+        list(result.models), phase_only_covariance(result, size)) for count, result in [(12, block12), *sweep.items()]})
     cells = np.stack([np.asarray(a) for a in grid.xy()], -1).reshape(-1, 2)
     pack = cells[np.asarray(scene.is_pack(cells))]
     out = {"ties": [ties.n_ties, predicted_ties.n_ties], "removed": [block12.n_removed, sweep[2].n_removed],
@@ -277,9 +302,12 @@ def realization(seed, images, tracked, size):
            "field": field,
            "factors": [block12.variance_factors, sweep[2].variance_factors],
            "group_factors": [group_factors(block12), group_factors(sweep[2])],
-           "planted": len(planted), "planted_found": len(planted & set(planted_run.removed_ties)),
-           "false_removed": len(set(planted_run.removed_ties) - planted - set(block12.removed_ties)),
-           "planted_shift": float(np.max(np.abs(planted_run.theta - block12.theta) / theta_sigma))}
+           "planted": len(planted)}
+    if planted_run is not None:
+        out.update({"planted_found": len(planted & set(planted_run.removed_ties)),
+                    "false_removed": len(set(planted_run.removed_ties) - planted - set(block12.removed_ties)),
+                    "planted_shift": float(np.max(np.abs(planted_run.theta - block12.theta) / theta_sigma))})
+    drift_errors = {}  # the methods of one set of models share their exact drift errors
     for label, (models, covariance) in methods.items():
         errors, model_sigma = zip(*[model_error(m, t, covariance[5 * k:5 * k + 5, 5 * k:5 * k + 5], rng, size)
                                     for k, (m, t) in enumerate(zip(models, truth, strict=True))], strict=True)
@@ -287,8 +315,11 @@ def realization(seed, images, tracked, size):
         for k in range(images - 1):
             a, b = sequence.images[k], sequence.images[k + 1]
             end = pack + true_displacement(scene, pack, a.time, b.time)
-            error = ((apparent(scene, models[k + 1], truth[k + 1], end, size) - end)
-                     - (apparent(scene, models[k], truth[k], pack, size) - pack))
+            key = (id(models[k]), id(models[k + 1]))
+            if key not in drift_errors:
+                drift_errors[key] = ((apparent(scene, models[k + 1], truth[k + 1], end, size) - end)
+                                     - (apparent(scene, models[k], truth[k], pack, size) - pack))
+            error = drift_errors[key]
             keep = np.all(np.isfinite(error), axis=1)
             drift.append(error[keep])
             pair = covariance[5 * k:5 * k + 10, 5 * k:5 * k + 10]
@@ -319,13 +350,24 @@ def realization(seed, images, tracked, size):
     return out
 
 
+def seed_ranges(seeds) -> str:
+    """``400-409, 412`` of sorted integers."""
+    seeds, parts = sorted(seeds), []
+    for seed in seeds:
+        if parts and seed == parts[-1][1] + 1:
+            parts[-1][1] = seed
+        else:
+            parts.append([seed, seed])
+    return ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in parts)
+
+
 def rms(values):
     return float(np.sqrt(np.mean(np.asarray(values) ** 2)))
 
 
 def summary(runs, args, elapsed):
     """The results file's lines for the realizations run so far."""
-    labels = [k for k in runs[0] if isinstance(runs[0][k], dict)]
+    labels = [k for k in runs[0] if isinstance(runs[0][k], dict) and "drift" in runs[0][k]]
     tie_error = np.concatenate([r["tie_error"] for r in runs])
     tie_sigma = np.concatenate([r["tie_sigma"] for r in runs])
     factors = [np.array([v for r in runs for v in r["factors"][i].values()]) for i in range(2)]
@@ -336,8 +378,9 @@ def summary(runs, args, elapsed):
     partial = "" if len(runs) == args.realizations else f" (of {args.realizations} planned: stopped for time)"
     lines = ["# Simultaneous adjustment of image sequences against the per-image and the chained fit", "",
              f"Generated by `experiments/sequence_block.py --realizations {args.realizations} --first-seed "
-             f"{args.first_seed} --images {args.images} --size {args.size}`: {len(runs)} simulated Lancaster-like "
-             f"sequences{partial} (seeds {args.first_seed}-{args.first_seed + len(runs) - 1}) of {args.images} "
+             f"{args.first_seed} --images {args.images} --size {args.size} --counts {args.counts}"
+             f"{'' if args.planted else ' --no-planted'}`: {len(runs)} simulated Lancaster-like "
+             f"sequences{partial} (seeds {seed_ranges([r['seed'] for r in runs])}) of {args.images} "
              f"NOAA-7-like {args.size} x {args.size} images; {elapsed:.0f} s. Ties per sequence (12 / 2 control "
              f"points): median {np.median([r['ties'][0] for r in runs]):.0f} / "
              f"{np.median([r['ties'][1] for r in runs]):.0f}; ties removed as mismatches: "
@@ -348,9 +391,9 @@ def summary(runs, args, elapsed):
              "the tracking adds about 0.35 / 0.20 km (experiments/results/lancaster_like.md, true models). "
              "Stated σ: `displacement_sigma` of the models' joint covariance without the tracking term: Q with the "
              "ties' variance factor estimated plus the ties' correlated and systematic error terms (the defaults: "
-             "`SequenceOptions.tie_correlation`, `tie_phase_sigma`; «former pair fields»: the affine pair fields of "
-             f"η {FORMER_PAIR_FIELDS[0]:g} / {FORMER_PAIR_FIELDS[1]:g} in place of the phase term), the same without "
-             "those terms («independent "
+             "`SequenceOptions.tie_correlation`, `tie_phase_sigma`, the affine pair fields `tie_offset_factor`, "
+             "`tie_gradient_factor`; «phase term alone (before issue 29)»: without the affine pair fields), the "
+             "same without all those terms («independent "
              "tie errors»); the chained and per-image fits: their own covariances. One sequence's drift errors are "
              "a few smooth error fields, not independent draws: the ratio varies from sequence to sequence and only "
              "the pooled one is a test; its 90 % interval is a bootstrap over the sequences.", "",
@@ -385,13 +428,15 @@ def summary(runs, args, elapsed):
               "; of which the matches' own noise (residual variance x tie_correlation) "
               f"{np.sqrt(np.mean(noise[:, 0])):.4f} / {np.sqrt(np.mean(noise[:, 1:])):.3f}; the rest in units of "
               "the pair's own (Xᵀ W X)⁻¹ (Σ(c² − noise) / Σ unit, the estimate of `SequenceOptions."
-              f"tie_offset_factor`, `tie_gradient_factor`): {factor[0]:.1f} / {factor[1]:.1f} (the former defaults: "
-              f"{FORMER_PAIR_FIELDS[0]:g} / {FORMER_PAIR_FIELDS[1]:g}; now {options.tie_offset_factor:g} / "
-              f"{options.tie_gradient_factor:g}, the phase term instead).", "",
-              f"Planted mismatches (5 % of the ties of the 12-point case, one observation each moved 5-20 pixels): "
-              f"{sum(r['planted_found'] for r in runs)} of {sum(r['planted'] for r in runs)} removed; other ties "
-              f"removed besides those of the clean run: {sum(r['false_removed'] for r in runs)}; largest change of "
-              f"an unknown against the clean adjustment: {max(r['planted_shift'] for r in runs):.2f} σ."]
+              f"tie_offset_factor`, `tie_gradient_factor` were the phase term not there): {factor[0]:.1f} / "
+              f"{factor[1]:.1f} (the defaults, measured beside the phase term: {options.tie_offset_factor:g} / "
+              f"{options.tie_gradient_factor:g})."]
+    if "planted_found" in runs[0]:
+        lines += ["", f"Planted mismatches (5 % of the ties of the 12-point case, one observation each moved 5-20 "
+                  f"pixels): {sum(r['planted_found'] for r in runs)} of {sum(r['planted'] for r in runs)} removed; "
+                  f"other ties removed besides those of the clean run: {sum(r['false_removed'] for r in runs)}; "
+                  f"largest change of an unknown against the clean adjustment: "
+                  f"{max(r['planted_shift'] for r in runs):.2f} σ."]
     if args.track:
         lines += ["", "Drift tracked on the remapped images (NCC, as `seaice track`) against the truth; stated σ "
                   "with 0.2 pixel of tracking:", "", "| method | vectors | RMS x / y (km) | stated σ RMS (km) | "
@@ -408,18 +453,35 @@ def summary(runs, args, elapsed):
 
 def main():
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--realizations", type=int, default=10)
-    parser.add_argument("--first-seed", type=int, default=0, help="seed of the first simulated sequence")
+    parser.add_argument("--realizations", type=int, default=30, help="simulated sequences (a pooled drift ratio "
+                        "over 10 is decided only to ±15-20 %%)")
+    parser.add_argument("--first-seed", type=int, default=400,
+                        help="seed of the first simulated sequence (400 on: seeds no default was measured on)")
     parser.add_argument("--images", type=int, default=4, help="images per simulated sequence")
     parser.add_argument("--out", type=Path, default=RESULTS / "sequence_block.md", help="results file")
     parser.add_argument("--size", type=int, default=512, help="pixels and scan lines per image")
     parser.add_argument("--track", action="store_true", help="also remap and track (12-point methods)")
+    parser.add_argument("--counts", default="4,2,0", help="control points per image of the sweep (2 always run)")
+    parser.add_argument("--no-planted", dest="planted", action="store_false", help="skip the planted mismatches")
+    parser.add_argument("--cache", type=Path, help="folder keeping each seed's matched ties and realization "
+                        "(module docstring)")
+    parser.add_argument("--cached-only", action="store_true", help="summarize the seeds in --cache, compute none")
     args = parser.parse_args()
+    counts = tuple(sorted({int(c) for c in args.counts.split(",")} | {2}, reverse=True))
     started = time.time()
     runs = []
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for seed in range(args.first_seed, args.first_seed + args.realizations):
-        runs.append(realization(seed, args.images, args.track, args.size))
+        stored = None if args.cache is None else args.cache / f"run_{seed}.pkl"
+        if stored is not None and stored.exists():
+            runs.append(pickle.loads(stored.read_bytes()))
+        elif args.cached_only:
+            continue
+        else:
+            runs.append({**realization(seed, args.images, args.track, args.size, counts, args.planted, args.cache),
+                         "seed": seed})
+            if stored is not None:
+                stored.write_bytes(pickle.dumps(runs[-1]))
         print(f"realization {len(runs)}/{args.realizations} ({time.time() - started:.0f} s)", flush=True)
         lines = summary(runs, args, time.time() - started)  # rewritten after every realization
         args.out.write_text("\n".join(lines) + "\n")

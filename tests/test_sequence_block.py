@@ -12,7 +12,14 @@ import xarray as xr
 from seaice_jax.adjust import engine
 from seaice_jax.adjust.engine import schur
 from seaice_jax.adjust.engine.problem import Problem
-from seaice_jax.adjust.sequence.adjustment import SequenceOptions, adjust_sequence, sequence_problem
+from seaice_jax.adjust.sequence.adjustment import (
+    SequenceOptions,
+    adjust_sequence,
+    correlated_tie_covariance,
+    phase_tie_covariance,
+    sequence_problem,
+    systematic_tie_covariance,
+)
 from seaice_jax.adjust.sequence.model import (
     scan_unknowns,
     sequence_observations,
@@ -406,3 +413,22 @@ def test_phase_dependent_tie_bias_gives_the_dense_sandwich_covariance(truth, rng
     assert np.all(np.diag(result.systematic) > 0.3 * np.diag(result.cofactor))
     plain = adjust_sequence(start, observed, controls, options=INDEPENDENT)
     np.testing.assert_array_equal(plain.systematic, 0.0)
+
+
+def test_the_default_covariance_carries_all_three_tie_error_terms(truth, rng):
+    """With the default options (issue 29: the affine pair fields beside the phase term) the systematic part of the
+    covariance is the sum of the correlated-tie, the affine pair-field and the phase term, each at its default and
+    none of them zero, recomputed from the final problem."""
+    models, ties, controls = truth
+    result = adjust_sequence(perturbed(models, rng), noisy(ties, rng), controls)
+    options, observations = SequenceOptions(), result.observations
+    assert options.tie_offset_factor > 0 and options.tie_gradient_factor > 0 and options.tie_phase_sigma > 0
+    problem, cofactor = sequence_problem(observations), np.asarray(result.cofactor)
+    sizes = np.array([(m.n_pixels, m.n_scans) for m in observations.models])
+    parts = [correlated_tie_covariance(problem, result.adjustment, cofactor, 1.0, options.tie_correlation),
+             systematic_tie_covariance(problem, result.adjustment, observations.reference_image, sizes, cofactor,
+                                       options.tie_offset_factor, options.tie_gradient_factor),
+             phase_tie_covariance(problem, result.adjustment, observations, cofactor, options.tie_phase_sigma)]
+    assert all(np.all(np.diag(part) > 0) for part in parts)
+    scale = np.sqrt(np.outer(np.diag(result.systematic), np.diag(result.systematic)))
+    assert np.abs((result.systematic - sum(parts)) / scale).max() < 1e-8

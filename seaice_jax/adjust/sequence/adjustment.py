@@ -48,11 +48,21 @@ a σ per observation:
   gets one bias), a per-image fit also in rotation and scale (0.05-1.2 pixel, the bias averages out; two of the
   tuning seeds, standard deviations of d over each pair's matches). So per pair and
   axis a field c₁ cos 2πd + c₂ sin 2πd with c ~ N(0, σ_φ²), d from the starting and the adjusted models, propagated
-  through the adjustment (:func:`phase_tie_covariance`; ``tie_phase_sigma``); with it the stated drift σ depends less
-  on how the ties were matched (stated / empirical 1.05 with 12 control points, 0.92-0.95 with 4 / 2 / 0 on
-  the tuning seeds, where the affine field of η 13 / 8 gives 1.19 and 0.92-0.94). The affine field (η_o and η_g
-  times the variance (Xᵀ W X)⁻¹ that the pair's own matches give its coefficients,
-  :func:`systematic_tie_covariance`; ``tie_offset_factor``, ``tie_gradient_factor``) stays available, 0 by default.
+  through the adjustment (:func:`phase_tie_covariance`; ``tie_phase_sigma``).
+  The phase term alone leaves the low-order part of the pair fields short, and that is the part the drift sees
+  (issue 29): on 33 fresh sequences the stated / empirical drift σ was 0.81 with 12 control points, on the tuning
+  seeds 1.05 — ten sequences decide a pooled ratio only to ±15-20 % (one sequence's drift error is a few smooth
+  fields; per sequence the ratio ran 0.5-2.0), so the drift ratio on them could not show it. Split on simulated
+  sequences (seeds 300-304) into what each error source moves: the drift error due to the ties' true errors
+  (pushed through the adjustment's gain, Δθ = Q Āᵀ W e) was 44 m RMS against a stated 37 m (12 control points)
+  and 59 against 45 m (2), all of it through the affine part of each pair's errors; the control points' part
+  was right (stated 9.9 m, 6.2 m realized; with the simulator's anisotropic pointing instead of one σ: the same
+  ±1 %). Fitted per pair axis to the true errors (seeds 300-304, 326-329: 432 pair axes of ≥ 30 matches), the
+  affine coefficients' mean square is 1.40 times what the correlated noise and the phase term give them for the
+  offset, 1.34-1.40 for the gradient along the pixels and 2.0 along the scan lines, the same for ties matched
+  through per-image fits and through predicted orbits. So the affine field is added to the phase term: η_o 8.9
+  and η_g 4.5 times the variance (Xᵀ W X)⁻¹ that the pair's own matches give its coefficients, the excess pooled
+  over both kinds of ties (:func:`systematic_tie_covariance`; ``tie_offset_factor``, ``tie_gradient_factor``).
   Measured in the drift they cause, the pair fields of different pairs are not positively correlated: their
   cross terms are −2 to −10 % of the sum of the pairs' own (tuning seeds, each control count).
 
@@ -113,13 +123,13 @@ class SequenceOptions:
             of one image pair as an affine field (module docstring, «Systematic tie errors»): per pair and image
             axis an affine field whose offset and gradients have η_o and η_g times the variance that the pair's
             matches would give them were their errors independent of their final σ, added to the covariance.
-            Default 0 (none): the pair fields of :func:`~seaice_jax.imagery.ties.find_ties` matches are the
-            sub-pixel bias of ``tie_phase_sigma``, whose size depends on how the models the ties were matched
-            through err, not on the number of matches (fitted to the true tie errors of the tuning seeds 100-109
-            of ``experiments/sequence_block.py``, 240 pair axes per tie set: η_o 14.6, η_g 3.8 on ties matched
-            through the per-image fits, η_o 44.9, η_g 3.3 on ties matched through predicted orbits; with η 13 / 8,
-            the former default measured on the first kind, the stated / empirical drift σ is 1.19 with 12 control
-            points and 0.92-0.94 with 4 / 2 / 0). For matchers shown to have fields of that kind.
+            The defaults are measured beside ``tie_phase_sigma`` and ``tie_correlation`` (issue 29): per pair
+            axis of :func:`~seaice_jax.imagery.ties.find_ties` matches of simulated sequences (tuning seeds
+            300-304 and 326-329 of ``experiments/sequence_block.py``, 4 images of 256 pixels; 432 pair axes of
+            ≥ 30 matches, through the per-image fits and through predicted orbits) the affine field fitted to the
+            true errors, its coefficients' mean square less what ``tie_correlation`` times (Xᵀ W X)⁻¹ and the
+            phase term give them, over Σ (Xᵀ W X)⁻¹: offset 8.9 (5.0 through per-image fits, 13.0 through
+            predicted orbits), gradients 4.5 (2.2-3.0 along the pixels, 7.6 along the scan lines). 0: none.
         tie_phase_sigma: pixels, σ of the matches' sub-pixel bias as a function of the sampling phase (module
             docstring, «Systematic tie errors»; :func:`phase_tie_covariance`): per pair and axis of the matched
             image, c₁ cos 2πd + c₂ sin 2πd with c ~ N(0, σ²), d the shift between where the starting models put a
@@ -130,10 +140,10 @@ class SequenceOptions:
             through predicted orbits) against the true correspondents: the part of each pair axis's true errors
             on cos 2πd, sin 2πd beside the matches' own noise (``tie_correlation`` times the residual variance),
             0.0182 pixel (90 % bootstrap over the sequences 0.0171-0.0194; 0.0155 through the per-image fits,
-            0.0205 through the predicted orbits). With it and ``tie_correlation`` (no affine fields) the stated /
-            empirical drift σ on those seeds is 1.05 / 0.95 / 0.93 / 0.92 with 12 / 4 / 2 / 0 control points (90 %
-            bootstrap over the sequences 0.94-1.21 / 0.83-1.13 / 0.82-1.07 / 0.80-1.10). 0: none (ties simulated
-            with independent errors).
+            0.0205 through the predicted orbits). With it and ``tie_correlation`` alone (no affine fields, before
+            issue 29) the stated / empirical drift σ on those seeds was 1.05 / 0.95 / 0.93 / 0.92 with 12 / 4 / 2 /
+            0 control points (90 % bootstrap over the sequences 0.94-1.21 / 0.83-1.13 / 0.82-1.07 / 0.80-1.10).
+            0: none (ties simulated with independent errors).
     """
 
     alpha: float = DEFAULT_ALPHA
@@ -145,8 +155,8 @@ class SequenceOptions:
     variance_groups: tuple[str, ...] = ("ties",)
     variance_tolerance: float = 0.01
     tie_correlation: float = 2.5
-    tie_offset_factor: float = 0.0
-    tie_gradient_factor: float = 0.0
+    tie_offset_factor: float = 8.9
+    tie_gradient_factor: float = 4.5
     tie_phase_sigma: float = 0.018
 
     def __post_init__(self):
