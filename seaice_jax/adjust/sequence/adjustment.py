@@ -53,7 +53,7 @@ a σ per observation:
   (issue 29): on 33 fresh sequences the stated / empirical drift σ was 0.81 with 12 control points, on the tuning
   seeds 1.05 — ten sequences decide a pooled ratio only to ±15-20 % (one sequence's drift error is a few smooth
   fields; per sequence the ratio ran 0.5-2.0), so the drift ratio on them could not show it. Split on simulated
-  sequences (seeds 300-304) into what each error source moves: the drift error due to the ties' true errors
+  sequences (seeds 301-303) into what each error source moves: the drift error due to the ties' true errors
   (pushed through the adjustment's gain, Δθ = Q Āᵀ W e) was 44 m RMS against a stated 37 m (12 control points)
   and 59 against 45 m (2), all of it through the affine part of each pair's errors; the control points' part
   was right (stated 9.9 m, 6.2 m realized; with the simulator's anisotropic pointing instead of one σ: the same
