@@ -11,7 +11,8 @@ navigation scope (flight, strip). If the stochastic model is right:
   measured on one strip only has r = 0 in both coordinates and can never be flagged) in every group — image x,
   image y, nadir returns, control points, and each kind of prior (offset, drift, Schuler terms, the turns'
   perturbations, the strips' deviations, sweep delay, range scale); target ≤ 1.5 α per group. The w-tests of one
-  block are correlated, so the binomial interval beside each rate is a guide only;
+  block are correlated, so the binomial interval beside each rate (every test independent) is too narrow; a second
+  interval resamples whole blocks;
 * the predicted σ of the adjusted positions (stations, all points) and of the drift vectors matches the
   empirical error: √mean(e²/σ²) per map coordinate within 10 % of 1 — judged conditioned on the stations'
   satellite fixes (:func:`normalized`): they shift each coverage as a whole, and the plain ratios of 40-60 blocks
