@@ -62,11 +62,15 @@ def small_block(rng, images=3, points=12, noise=1.0, control_error=0.0):
     return Problem(blocks, jnp.zeros(4 * images), jnp.asarray(start_points)), truth_theta, truth_points
 
 
+CROSS = [(3, 4), (5, 9)]
+"""Point pairs whose cross-cofactors the small block's solves return: the same in every test of the small block, so
+that one compiled solve per backend serves them all (a request of none, padded to one pair, compiled again)."""
+
+
 def test_schur_and_dense_backends_agree(rng):
     problem, _, _ = small_block(rng)
-    cross = [(3, 4), (5, 9)]
-    dense = solve(problem, EngineOptions("dense"), cross_points=cross)
-    schur = solve(problem, EngineOptions("schur"), cross_points=cross)
+    dense = solve(problem, EngineOptions("dense"), cross_points=CROSS)
+    schur = solve(problem, EngineOptions("schur"), cross_points=CROSS)
     assert bool(dense.converged) and bool(schur.converged)
     assert dense.degrees_of_freedom == schur.degrees_of_freedom > 0
 
@@ -89,7 +93,7 @@ def test_schur_and_dense_backends_agree(rng):
 def test_point_cofactors_match_the_inverse_normal_matrix(rng):
     """Independent truth: the full (JᵀJ)⁻¹ from a finite-difference Jacobian, solved by numpy."""
     problem, _, _ = small_block(rng)
-    result = solve(problem, EngineOptions("schur"))
+    result = solve(problem, EngineOptions("schur"), cross_points=CROSS)
     theta, points = np.asarray(result.parameters["theta"]), np.asarray(result.parameters["points"])
 
     @jax.jit  # one compilation for the 72 evaluations
@@ -118,7 +122,7 @@ def test_point_cofactors_match_the_inverse_normal_matrix(rng):
 @pytest.mark.parametrize("backend", ["dense", "schur"])
 def test_a_control_point_blunder_is_flagged_named_and_signed(rng, backend):
     problem, _, _ = small_block(rng, control_error=30.0)  # 30 σ on control point 2's x
-    result = solve(problem, EngineOptions(backend))
+    result = solve(problem, EngineOptions(backend), cross_points=CROSS)
     flags = result.flagged()
     assert flags and (flags[0].group, flags[0].row, flags[0].component) == ("control", 2, 0)
     # computed − observed residual; the estimated error has the sign of the planted one (observed − true)
@@ -137,18 +141,18 @@ def test_a_blunder_on_a_point_seen_twice_is_named_inseparable(rng, backend):
     bad = Problem({**problem.blocks, "image": ResidualBlock(image.function, {"observed": observed}, image.sigma,
                                                             image.global_index, image.point_index)},
                   problem.start, problem.points)
-    result = solve(bad, EngineOptions(backend))
+    result = solve(bad, EngineOptions(backend), cross_points=CROSS)
     flags = [f for f in result.flagged() if f.group == "image" and f.row in rows]
     assert len(flags) == 2 and not any(f.separable for f in flags)
     assert abs(abs(flags[0].w) - abs(flags[1].w)) < 0.05 * abs(flags[0].w)
     assert {flags[0].confounded_with[1], flags[1].confounded_with[1]} == set(rows.tolist())
     assert float(np.max(result.w_correlation["image"][rows])) > INSEPARABLE
-    clean = solve(problem, EngineOptions(backend))
+    clean = solve(problem, EngineOptions(backend), cross_points=CROSS)
     other = image.data["observed"].at[rows[0] + 2, 0].add(12.0)  # a point seen on three images
     single = Problem({**problem.blocks, "image": ResidualBlock(image.function, {"observed": other}, image.sigma,
                                                                image.global_index, image.point_index)},
                      problem.start, problem.points)
-    separable = [f for f in solve(single, EngineOptions(backend)).flagged() if f.row == rows[0] + 2]
+    separable = [f for f in solve(single, EngineOptions(backend), cross_points=CROSS).flagged() if f.row == rows[0] + 2]
     assert separable and separable[0].separable and not clean.flagged()
 
 
@@ -311,8 +315,8 @@ def test_the_result_code_says_how_a_solve_ended_and_an_unconverged_solve_raises(
 
 def test_the_trust_region_reaches_the_damped_loops_minimum_in_as_few_steps(rng):
     problem, _, _ = small_block(rng)
-    damped = solve(problem, EngineOptions("dense"))
-    region = solve(problem, EngineOptions("dense", strategy="trust-region"))
+    damped = solve(problem, EngineOptions("dense"), cross_points=CROSS)
+    region = solve(problem, EngineOptions("dense", strategy="trust-region"), cross_points=CROSS)
     assert bool(region.converged) and int(region.steps) <= int(damped.steps)
     np.testing.assert_allclose(region.parameters["points"], damped.parameters["points"], rtol=0, atol=1e-6)
     # entries that are zero but for roundoff (1e-17 next to a diagonal of 0.4) agree to the matrix's scale
