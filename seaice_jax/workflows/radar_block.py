@@ -403,7 +403,8 @@ def _sequential_figures(result: BlockAnalysis, out: Path) -> list[Path]:
             files.append(plot_vectors(out / f"control_discrepancies_c{k}.png", where, internal[known] - where,
                                       f"Radar minus known position at the control points, {coverage.name}",
                                       "before the external adjustment (source 000, Figs 5 and 6)",
-                                      background=internal[np.isfinite(internal).all(axis=1)]))
+                                      background=internal[np.isfinite(internal).all(axis=1)],
+                                      projection=result.project.plane))
         if sequential.tie_before.size:
             files.append(plot_tie_discrepancies(out / f"tie_discrepancies_c{k}.png", sequential.tie_before,
                                                 sequential.tie_after))
@@ -428,10 +429,10 @@ def _drift_figures(result: BlockAnalysis, out: Path) -> list[Path]:
     for pair in result.drift:
         files.append(plot_vectors(out / f"drift_c{pair.second}.png", pair.start, pair.vectors.displacement,
                                   f"Drift {names[pair.first]} -> {names[pair.second]}", "source 000, Fig. 7",
-                                  covariances=pair.covariance))
+                                  covariances=pair.covariance, projection=result.project.plane))
         files.append(plot_vectors(out / f"relative_motion_c{pair.second}.png", pair.start, pair.rigid.residuals,
                                   "Relative motion after removing the general (rigid) drift", "source 000, Fig. 8",
-                                  covariances=pair.covariance))
+                                  covariances=pair.covariance, projection=result.project.plane))
     return files
 
 
