@@ -43,12 +43,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax import MEAN_RADIUS, NavigationSpline, SeaiceError, latitude_longitude, simultaneous_block
 from seaice_jax.adjust.engine.quality import critical_value, global_test
-from seaice_jax.adjust.radar.block import BlockOptions, simultaneous_block
-from seaice_jax.errors import SeaiceError
-from seaice_jax.geometry.earth import MEAN_RADIUS, latitude_longitude
+from seaice_jax.adjust.radar.block import BlockOptions
 from seaice_jax.geometry.range_doppler import look_sign
-from seaice_jax.sensors.navigation import NavigationSpline, moving_average
+from seaice_jax.sensors.navigation import moving_average
 from seaice_jax.sensors.slar import imaging_time
 from seaice_jax.sensors.strips import image_to_ground, strip_ground_points, strip_navigation
 from seaice_jax.simulate.aircraft import ErrorModel, FlightPlan, aidjex_scenario, simulate_flight

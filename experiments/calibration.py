@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seaice_jax.errors import SeaiceError
+from seaice_jax import SeaiceError
 
 sys.path.insert(0, str(Path(__file__).parent))
 

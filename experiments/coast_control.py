@@ -27,11 +27,9 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.orbit.fit import fit_scan_model
-from seaice_jax.geometry.earth import MEAN_RADIUS
+from seaice_jax import MEAN_RADIUS, ControlPoints, fit_scan_model
 from seaice_jax.imagery.coast_control import coast_control
 from seaice_jax.io.coastline import coastline_of_grid
-from seaice_jax.sensors.control import ControlPoints
 from seaice_jax.simulate.satellite import DAY, ice_scene, noaa_pass, render
 
 RESULTS = Path(__file__).with_name("results")

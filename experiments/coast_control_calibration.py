@@ -31,7 +31,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.geometry.earth import MEAN_RADIUS
+from seaice_jax import MEAN_RADIUS
 from seaice_jax.imagery.coast_control import MATCH_SIGMA_SCALE, coast_control
 from seaice_jax.io.coastline import coastline_of_grid
 from seaice_jax.simulate.satellite import DAY, ice_scene, noaa_pass, render

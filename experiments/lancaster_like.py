@@ -29,12 +29,17 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.linalg import block_diag  # noqa: E402
 
-from seaice_jax.adjust.orbit.fit import control_point_deviations, fit_scan_model  # noqa: E402
-from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle  # noqa: E402
-from seaice_jax.geometry.projections import MapGrid  # noqa: E402
-from seaice_jax.imagery.remap import remap  # noqa: E402
-from seaice_jax.imagery.tracking import track  # noqa: E402
-from seaice_jax.simulate.satellite import simulate_sequence, true_displacement  # noqa: E402
+from seaice_jax import (  # noqa: E402
+    MEAN_RADIUS,
+    MapGrid,  # noqa: E402
+    fit_scan_model,  # noqa: E402
+    remap,  # noqa: E402
+    simulate_sequence,  # noqa: E402
+    track,  # noqa: E402
+    wrap_angle,
+)
+from seaice_jax.adjust.orbit.fit import control_point_deviations  # noqa: E402
+from seaice_jax.simulate.satellite import true_displacement  # noqa: E402
 from seaice_jax.workflows.track import displacement_sigma  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")

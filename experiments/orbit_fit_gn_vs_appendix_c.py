@@ -16,25 +16,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from seaice_jax import SOLAR_DAY, Orbit, fit_scan_model
 from seaice_jax.adjust.engine.quality import global_test
 from seaice_jax.adjust.engine.sharding import sharded_vmap
 from seaice_jax.adjust.orbit.fit import (
     FREE_PARAMETERS,
     ControlPoints,
     control_args,
-    fit_scan_model,
     orbit_solver,
     propagate_position_sigma,
 )
 from seaice_jax.adjust.orbit.multi_image import monte_carlo_comparison
-from seaice_jax.geometry.earth import SOLAR_DAY
-from seaice_jax.geometry.scan import Orbit
-from seaice_jax.simulate.satellite import (
-    noaa_image,
-    overlapping_pair,
-    perturb_known_positions,
-    simulate_control_points,
-)
+from seaice_jax.simulate.satellite import noaa_image, overlapping_pair, perturb_known_positions, simulate_control_points
 from seaice_jax.simulate.scenarios import FIGURE_3_3_STATIONS
 
 RESULTS = Path(__file__).with_name("results") / "orbit_fit.md"

@@ -61,22 +61,26 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.linalg import block_diag
 
-from seaice_jax.adjust.orbit.fit import fit_scan_model, position_jacobian
-from seaice_jax.adjust.orbit.multi_image import sequential_fit
-from seaice_jax.adjust.sequence.adjustment import (
+from seaice_jax import (
+    MEAN_RADIUS,
+    ControlPoints,
+    ImageObservations,
+    MapGrid,
     SequenceOptions,
     adjust_sequence,
-    sequence_problem,
-    systematic_tie_covariance,
+    find_ties,
+    fit_scan_model,
+    remap,
+    simulate_sequence,
+    track,
+    wrap_angle,
 )
+from seaice_jax.adjust.orbit.fit import position_jacobian
+from seaice_jax.adjust.orbit.multi_image import sequential_fit
+from seaice_jax.adjust.sequence.adjustment import sequence_problem, systematic_tie_covariance
 from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
-from seaice_jax.geometry.earth import MEAN_RADIUS, wrap_angle
-from seaice_jax.geometry.projections import MapGrid
-from seaice_jax.imagery.remap import remap
-from seaice_jax.imagery.ties import find_ties, transfer
-from seaice_jax.imagery.tracking import track
-from seaice_jax.sensors.control import ControlPoints, ImageObservations
-from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
+from seaice_jax.imagery.ties import transfer
+from seaice_jax.simulate.satellite import true_displacement
 from seaice_jax.workflows.track import displacement_sigma
 
 RESULTS = Path(__file__).with_name("results")

@@ -23,7 +23,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from seaice_jax.adjust.radar.block import BlockOptions, simultaneous_block  # noqa: E402
+from seaice_jax import simultaneous_block  # noqa: E402
+from seaice_jax.adjust.radar.block import BlockOptions  # noqa: E402
 from seaice_jax.adjust.radar.sequential import sequential_block  # noqa: E402
 from seaice_jax.sensors.strips import strip_ground_points  # noqa: E402
 from seaice_jax.simulate.aircraft import ErrorModel, aidjex_scenario, prudhoe_scenario  # noqa: E402

@@ -31,10 +31,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from seaice_jax.geometry.projections import MapGrid
-from seaice_jax.imagery.remap import remap
-from seaice_jax.imagery.tracking import CORRELATION_AREA, SIGMA_FLOOR, TrackingOptions, track
-from seaice_jax.simulate.satellite import land_mask, simulate_sequence, true_displacement
+from seaice_jax import MapGrid, TrackingOptions, remap, simulate_sequence, track
+from seaice_jax.imagery.tracking import CORRELATION_AREA, SIGMA_FLOOR
+from seaice_jax.simulate.satellite import land_mask, true_displacement
 
 RESULTS = Path(__file__).with_name("results")
 SIZE = 256
