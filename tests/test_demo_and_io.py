@@ -1,4 +1,5 @@
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -24,6 +25,8 @@ def test_demo_writes_its_files_and_its_numbers_hold(tmp_path):
     assert names == ["aidjex", "figure_3_3_stations.csv", "manifest.json", "map.png", "orbit_fit.json",
                      "orbit_fit_report.txt", "position_sigma.png", "radar_strip.csv", "satellite_image.csv", "sequence"]
     assert foreign_output(tmp_path / "out", DEMO_COMMAND) is None  # a rerun replaces it
+    listed = json.loads((tmp_path / "out" / "manifest.json").read_text())["files"]
+    assert f"wrote {len(listed)} files into" in result.summary  # every file the folder holds, the manifest too
     for name in ("film.gif", "drift/drift_IMG01_IMG02.nc", "remapped/IMG03.tif", "velocities/box_averages.png",
                  "adjusted/models.npz", "adjusted/ties.csv"):
         assert (tmp_path / "out" / "sequence" / name).stat().st_size > 0

@@ -362,8 +362,9 @@ def run_demo(out_dir: str | os.PathLike = "seaice-demo", overwrite: bool = False
                                                          say=say)
         files = list(folder.final(files + fit_files + block_files + sequence_files))
         files.append(write_manifest(folder, DEMO_COMMAND))
+    written = sum(path.is_file() for path in out_dir.rglob("*"))  # the steps' own files too, as the manifest lists
     lines = [*_summary(radar, image, fit_report), *block_lines, *sequence_lines,
-             f"  wrote {len(files)} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "
+             f"  wrote {written} files into {out_dir}/ (map.png, position_sigma.png, orbit_fit_report.txt, "
              "aidjex/simultaneous/report.txt, sequence/film.gif, ...)"]
     return DemoResult(tuple(files), radar.latitude.size, radar.time_error, radar.range_error, image.latitude.size,
                       image.round_trip, float(np.max(np.abs(image.dlat - image.printed_dlat))),
