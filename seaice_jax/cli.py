@@ -23,7 +23,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from seaice_jax import __version__  # noqa: E402
-from seaice_jax._compilation_cache import CACHE_VARIABLE, default_cache_folder, enable_compilation_cache  # noqa: E402
+from seaice_jax._compilation_cache import CACHE_VARIABLE, enable_compilation_cache  # noqa: E402
 from seaice_jax.errors import EXIT_FAILURE, EXIT_OK, SeaiceError, exit_code  # noqa: E402
 from seaice_jax.outputs import Interrupted, check_interrupted, interrupts_raise  # noqa: E402
 
@@ -425,22 +425,6 @@ def _sequence_commands(commands, common) -> None:
     movie.set_defaults(run=_movie)
 
 
-def compile_cache_folder(enabled: bool = True) -> Path | None:
-    """Folder of JAX's persistent compilation cache for the ``seaice`` command, or None for no cache.
-
-    ``$SEAICE_JAX_CACHE_DIR`` when set (empty: no cache), else ``$XDG_CACHE_HOME/seaice_jax/jax`` (default
-    ``~/.cache/seaice_jax/jax``); None when ``enabled`` is false (``--no-compile-cache``).
-    """
-    return default_cache_folder() if enabled else None
-
-
-def _use_compile_cache(folder: Path | None) -> None:
-    """Turn on JAX's persistent compilation cache in ``folder`` (every compilation, however short, is kept: a second
-    run of a command then skips XLA's compilations), or leave it off for None."""
-    if folder is not None:
-        enable_compilation_cache(folder)
-
-
 @contextlib.contextmanager
 def _library_logging(verbosity: int) -> Iterator[None]:
     """While a command runs, the library's log records (the ``seaice_jax`` loggers) go to stderr as
@@ -631,7 +615,8 @@ def main(argv=None) -> int:
         with interrupts_raise():  # from the start: a Ctrl-C while JAX loads is not lost (nor a traceback)
             args = build_parser().parse_args(argv)
             with _library_logging(args.verbosity):
-                _use_compile_cache(compile_cache_folder(args.compile_cache))
+                if args.compile_cache:  # the default folder, or none for an empty $SEAICE_JAX_CACHE_DIR
+                    enable_compilation_cache()
                 check_interrupted()  # one swallowed while JAX loaded (by its garbage-collection callback)
                 code = args.run(args)
     except Interrupted as interrupt:

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from jax.monitoring import register_event_duration_secs_listener, unregister_event_duration_listener
 
+from seaice_jax._compilation_cache import default_cache_folder
 from seaice_jax.adjust.orbit.fit import fit_scan_model
-from seaice_jax.cli import CACHE_VARIABLE, build_parser, compile_cache_folder
+from seaice_jax.cli import CACHE_VARIABLE, build_parser
 from seaice_jax.simulate.satellite import noaa_image, simulate_control_points
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -72,12 +73,11 @@ def test_seaice_code_runs_in_float64_even_when_the_caller_asks_for_float32():
 def test_compile_cache_folder_follows_the_environment(monkeypatch, tmp_path):
     monkeypatch.delenv(CACHE_VARIABLE, raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert compile_cache_folder() == tmp_path / "xdg" / "seaice_jax" / "jax"
-    assert compile_cache_folder(enabled=False) is None
+    assert default_cache_folder() == tmp_path / "xdg" / "seaice_jax" / "jax"
     monkeypatch.setenv(CACHE_VARIABLE, str(tmp_path / "mine"))
-    assert compile_cache_folder() == tmp_path / "mine"
+    assert default_cache_folder() == tmp_path / "mine"
     monkeypatch.setenv(CACHE_VARIABLE, "")
-    assert compile_cache_folder() is None
+    assert default_cache_folder() is None
     assert build_parser().parse_args(["--no-compile-cache", "demo"]).compile_cache is False
     assert build_parser().parse_args(["demo"]).compile_cache is True
 
