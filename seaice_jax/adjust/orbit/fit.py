@@ -46,7 +46,7 @@ FLAG_ARCMIN = 3.0
 """Stations whose DLAT or DLONG exceeds this many arc minutes are flagged, as the 1985 program did."""
 
 _distance = jax.jit(great_circle_distance)
-"""Compiled once each (eager, their operations would each compile on their own)."""
+"""Compiled once (eager, its operations would each compile on their own)."""
 
 
 def _wrapped(angle):
