@@ -253,21 +253,38 @@ def dask_client(workers: int | None = None, scheduler: str | None = None) -> Ite
     # and then unblocks SIGINT and SIGTERM around its own start)
     resource_tracker.ensure_running()
     cluster = None
+    with _distributed_logs(logging.WARNING) as quiet:
+        try:
+            with _sigint_held():
+                cluster = LocalCluster(n_workers=local_workers(workers)[0], threads_per_worker=1, processes=True,
+                                       dashboard_address=no_dashboard, env=cache)
+                client = Client(cluster)
+                _LOCAL.add(client)
+            check_interrupted()
+            with client:
+                yield client
+        finally:
+            if cluster is not None:
+                with _sigint_held():  # a second Ctrl-C does not cut the closing short (it is delivered after)
+                    if sys.exc_info()[0] is not None:  # stopped (an interrupt, an error): no running task is wanted
+                        quiet.setLevel(logging.CRITICAL)  # the scheduler's notes on the workers it lost
+                        _end_workers(cluster)
+                    cluster.close()
+
+
+@contextlib.contextmanager
+def _distributed_logs(level: int) -> Iterator[logging.Logger]:
+    """Dask's ``distributed`` logger at ``level`` while the block runs, the level it had after. Around the whole
+    life of a local cluster: Dask's own ``silence_logs`` gives back the level it found inside ``close``, and that
+    was INFO, at which the scheduler's note on a connection closed by the killed workers printed a traceback after
+    a Ctrl-C (a race: seen on CI)."""
+    logger = logging.getLogger("distributed")
+    before = logger.level
+    logger.setLevel(level)
     try:
-        with _sigint_held():
-            cluster = LocalCluster(n_workers=local_workers(workers)[0], threads_per_worker=1, processes=True,
-                                   dashboard_address=no_dashboard, env=cache)
-            client = Client(cluster)
-            _LOCAL.add(client)
-        check_interrupted()
-        with client:
-            yield client
+        yield logger
     finally:
-        if cluster is not None:
-            with _sigint_held():  # a second Ctrl-C does not cut the closing short (it is delivered after)
-                if sys.exc_info()[0] is not None:  # stopped (an interrupt, an error): no running task is wanted
-                    _end_workers(cluster)
-                cluster.close()
+        logger.setLevel(before)
 
 
 def _end_workers(cluster: LocalCluster) -> None:
