@@ -153,7 +153,14 @@ def test_a_bad_box_is_named(box, message):
 def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
     from scipy.ndimage import gaussian_filter
 
-    from seaice_jax.imagery.tracking import ON_LAND, TrackingOptions, grid_points
+    from seaice_jax.imagery.tracking import (
+        GOOD,
+        MIXED_MOTION,
+        ON_LAND,
+        TrackingOptions,
+        grid_points,
+        patch_touches_land,
+    )
     from seaice_jax.io.remapped import RemappedStack
     from seaice_jax.workflows.track import land_of_grid, track_sequence
 
@@ -174,9 +181,15 @@ def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
     assert 0.2 < on_land.mean() < 0.8
     assert everywhere.pairs[0].good[on_land].mean() > 0.9  # textured land tracks as well as ice without the mask
     assert (at_sea.pairs[0].status[on_land] == ON_LAND).all()  # with it, every vector from land is "on land"
-    sea = at_sea.pairs[0].status[~on_land]
+    sea, unmasked = at_sea.pairs[0].status[~on_land], everywhere.pairs[0].status[~on_land]
     assert (sea == ON_LAND).sum() < 0.2 * sea.size  # at sea, only those that end on land join them
-    np.testing.assert_array_equal(sea[sea != ON_LAND], everywhere.pairs[0].status[~on_land][sea != ON_LAND])
+    assert not (everywhere.pairs[0].status == MIXED_MOTION).any()  # one motion everywhere: no patch across two
+    # a good vector with land in its patch (start or end) is MIXED_MOTION: land does not drift; the rest as unmasked
+    mixed = sea == MIXED_MOTION
+    assert mixed.any() and (unmasked[mixed] == GOOD).all()
+    assert patch_touches_land(land, rows, columns, options.patch // 2 + 3)[~on_land][mixed].all()
+    kept = (sea != ON_LAND) & ~mixed
+    np.testing.assert_array_equal(sea[kept], unmasked[kept])
     first = at_sea.records.time == 0.0
     x, y = grid.projection.forward(at_sea.records.latitude[first], at_sea.records.longitude[first])
     row, column = (np.round(np.asarray(a)).astype(int) for a in grid.to_pixel(x, y))

@@ -27,6 +27,7 @@ from seaice_jax.imagery.tracking import (
     GOOD,
     LOW_CONTRAST,
     LOW_CORRELATION,
+    MIXED_MOTION,
     NO_DATA,
     ON_LAND,
     OUTLIER,
@@ -246,9 +247,10 @@ OSISAF_STATUS = {0: "missing_input_data", 1: "over_land", 2: "no_ice", 3: "close
 """``status_flag`` codes of the OSI SAF low-resolution sea-ice drift product (OSI-405), as its files declare them."""
 
 TO_OSISAF_STATUS = {GOOD: 30, NO_DATA: 0, LOW_CONTRAST: 10, LOW_CORRELATION: 11, FLAT_PEAK: 10, AT_EDGE: 10,
-                    OUTLIER: 13, ON_LAND: 1}
+                    OUTLIER: 13, ON_LAND: 1, MIXED_MOTION: 3}
 """The OSI SAF code of each :data:`seaice_jax.imagery.tracking.STATUS` code: a patch without texture, a flat peak
-and a peak at the search window's edge are all "processing_failed" there."""
+and a peak at the search window's edge are all "processing_failed" there; a patch across two motions (land in it,
+or its surroundings disagree: the fast-ice edge) is "close_to_coast_or_edge"."""
 
 _FLOAT_FILL = -1e10  # OSI SAF's _FillValue of its floating-point fields
 

@@ -183,8 +183,9 @@ def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None,
     """Track the ice between consecutive remapped images; each vector's σ combines its tracking σ (from its
     correlation peak, :mod:`seaice_jax.imagery.tracking`) with both images' geolocation σ. ``land``: ``(n_rows,
     n_columns)`` bool on the grid, True on land: a vector that starts or ends on land has the status
-    :data:`~seaice_jax.imagery.tracking.ON_LAND` (never good), and no floe is followed onto or from land, while
-    patches at sea may reach over the coast."""
+    :data:`~seaice_jax.imagery.tracking.ON_LAND` (never good), and no floe is followed onto or from land; a good
+    vector whose patch reaches over the coast is :data:`~seaice_jax.imagery.tracking.MIXED_MOTION` (so is one
+    whose surrounding patches disagree with it: the fast-ice edge)."""
     options = options or TrackingOptions()
     if len(stack.names) < 2:
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
