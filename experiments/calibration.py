@@ -18,9 +18,15 @@ own with ``--rows``):
   default ``BlockOptions`` of the flight and the strip navigation scope): stated: the adjusted stations', all
   points' and drift vectors' covariance against the truth; σ̂0, global test, the w-test alarms per testable
   observation by group (as its ``summarize`` counts them).
-* **sequence** — image sequences of ``experiments/sequence_block.py`` (its :func:`realization`, without tracking):
-  the simultaneous adjustment with 12 control points per image; stated: the drift σ due to the models
-  (``displacement_sigma`` of the joint covariance) against the exact drift error at every pack-ice cell.
+* **sequence** — image sequences of ``experiments/sequence_block.py`` (its :func:`realization`, without tracking)
+  as its fresh-seed run made them (4 images of 256 x 256, seeds :data:`ROW_SEEDS`; ``--sequence-ties`` reads that
+  run's matched ties, the adjustments are computed anew): the simultaneous adjustment and the per-image fits, 12
+  control points per image; stated: the drift σ due to the models (``displacement_sigma`` (x, y) of the joint
+  covariance) against the exact drift error at every pack-ice cell, and the position σ (north, east) at random
+  pixels against the model's true error there. Tests of the simultaneous adjustment: the control points' group
+  test (``sequence_block.group_test``, their σ given) as the global test, their w-tests; the whole adjustment's
+  σ̂0 and global test (little to test: the ties' variance factors are estimated) and the ties' removals by the
+  snooping (real mismatches among them, not a false-alarm rate) in the row's note.
 * **tracking** — image pairs of ``experiments/tracking_calibration.py`` (its :func:`pair_errors`): stated: the
   per-vector σ from the correlation peak with the package's defaults (``CORRELATION_AREA``, ``SIGMA_FLOOR``), for
   the vectors the package leaves good (not flagged ``MIXED_MOTION``); the flag's rates among the vectors of one
@@ -43,13 +49,15 @@ so an interrupted run resumes and ``--table-only`` re-assembles the table from w
 experiments/results/calibration.md (``--out``).
 
 Run: ``.venv/bin/python experiments/calibration.py [--rows orbit,coast,tracking,deformation,block,block_strip,
-sequence] [--seeds N] [--quick] [--minutes M] [--table-only]``. A full run (the default seeds per row) took, on 2
-cores shared with about six other people's work (load average 18-29 by ``uptime``, this script at nice 10): orbit
-500 fits 5.5 min, coast 30 images 42 min, tracking 30 pairs 9 min, deformation 200 floe sets 15 s, radar blocks
-about 10 s each after a compilation of 3-8 min (100 per scope), sequences 6-28 min each (3 images of 256 x 256; the
-first with its compilations) — about 2.5 hours of wall time in all at that load, a fraction of it on a quiet
-machine. The results file records each row's compute time and, where recorded, the load average. ``--quick`` (3
-seeds per row) of orbit and deformation: about 15 s of CPU (2 min of wall time at load 20), as the test runs it.
+sequence] [--seeds N] [--quick] [--minutes M] [--table-only] [--sequence-ties DIR]``. A full run (the default
+seeds per row) took, on 2 cores shared with about six other people's work (load average 18-29 by ``uptime``, this
+script at nice 10): orbit 500 fits 5.5 min, coast 30 images 42 min, tracking 30 pairs 9 min, deformation 200 floe
+sets 15 s, radar blocks about 10 s each after a compilation of 3-8 min (100 per scope), sequences 6-28 min each (3
+images of 256 x 256, ties matched; the first with its compilations; with the ties read through
+``--sequence-ties``, 4 images: about 3 min each at load 7) — about 2.5 hours of wall time in all at that load, a
+fraction of it on a quiet machine. The results file records each row's compute time and, where recorded, the
+load average. ``--quick`` (3 seeds per row) of orbit and deformation: about 15 s of CPU (2 min of wall time at load
+20), as the test runs it.
 """
 
 import argparse
@@ -70,8 +78,12 @@ CACHE = RESULTS / ".cache"
 FIRST_SEED = 50_000
 ROW_OFFSET = {"orbit": 0, "coast": 1000, "block": 2000, "block_strip": 2500, "sequence": 3000, "tracking": 4000,
               "deformation": 5000}
-DEFAULT_SEEDS = {"orbit": 500, "coast": 30, "block": 100, "block_strip": 100, "sequence": 5, "tracking": 30,
+DEFAULT_SEEDS = {"orbit": 500, "coast": 30, "block": 100, "block_strip": 100, "sequence": 32, "tracking": 30,
                  "deformation": 200}
+ROW_SEEDS = {"sequence": (*range(400, 407), *range(410, 416), *range(420, 427), *range(430, 436), *range(440, 446))}
+"""Rows whose fresh seeds are a list: the sequences are those of ``experiments/sequence_block.py``'s fresh-seed run
+(``experiments/results/sequence_block.md``; seeds from 400 on, none tuned on), whose matched ties are kept
+(``--sequence-ties``)."""
 QUICK_SEEDS = 3
 BAND = (0.9, 1.1)
 GLOBAL_BAND = (0.03, 0.07)
@@ -92,8 +104,11 @@ _failures: dict = {}
 
 # ---------------------------------------------------------------------------------------------------- statistics
 
-def seed_range(row: str, count: int) -> range:
-    """The fresh seeds of ``row``: ``FIRST_SEED + ROW_OFFSET[row]`` onwards."""
+def seed_range(row: str, count: int):
+    """The first ``count`` fresh seeds of ``row``: its :data:`ROW_SEEDS` where it has a list (then at most those),
+    else ``FIRST_SEED + ROW_OFFSET[row]`` onwards."""
+    if row in ROW_SEEDS:
+        return list(ROW_SEEDS[row][:count])
     first = FIRST_SEED + ROW_OFFSET[row]
     return range(first, first + count)
 
@@ -379,19 +394,65 @@ def row_block(seeds, quick: bool = False, deadline=None, scope: str = "flight") 
 
 # ---------------------------------------------------------------------------------------------------- sequence
 
-SEQUENCE_IMAGES = 3
+SEQUENCE_IMAGES = 4
 SEQUENCE_SIZE = 256
 SEQUENCE_METHOD = "simultaneous, 12 control points"
+SEQUENCE_PER_IMAGE = "per image, 12 control points"
+_sequence_ties: Path | None = None
+"""``--sequence-ties``: the folder of ``experiments/sequence_block.py``'s matched ties per seed (``ties_<seed>.pkl``),
+read where present and written where not (``None``: match every seed anew, about 150 s a sequence)."""
 
 
 def sequence_realization(seed: int) -> dict:
-    """One sequence of ``experiments/sequence_block.py`` (no tracking): the simultaneous adjustment's exact drift
-    errors and their stated σ, and its model errors and stated σ."""
+    """One sequence of ``experiments/sequence_block.py`` as its fresh-seed run was made (``--images 4 --size 256
+    --counts 2 --no-planted``; the 2-point sweep is not computed here, it changes no draw of the 12-point case), no
+    tracking: per method (the simultaneous adjustment and the per-image fits, 12 control points each) the exact
+    drift errors and their stated σ ``(n, 2)`` m and the model errors (north, east) and their stated σ at random
+    pixels ``(1600, 2)`` m; ``quality``: the simultaneous adjustment's own statistics
+    (:func:`sequence_block.adjustment_quality`)."""
     from sequence_block import realization
 
-    out = realization(seed, SEQUENCE_IMAGES, False, SEQUENCE_SIZE)
-    keep = (SEQUENCE_METHOD, "per image, 12 control points")
-    return {label: {k: np.asarray(v) for k, v in out[label].items()} for label in keep if label in out}
+    keep = (SEQUENCE_METHOD, SEQUENCE_PER_IMAGE)
+    out = realization(seed, SEQUENCE_IMAGES, False, SEQUENCE_SIZE, counts=(), planting=False, cache=_sequence_ties,
+                      drift_labels=keep)
+    result = {label: {k: np.asarray(v) for k, v in out[label].items()} for label in keep if label in out}
+    return {**result, "quality": out["quality"], "ties": int(out["ties"][0])}
+
+
+def sequence_tests(runs) -> dict:
+    """The simultaneous adjustment's tests over ``runs`` for :func:`entry`: ``sigma0`` √(T/q) and ``rejected`` of
+    the control points' group test (:func:`sequence_block.group_test`, α = :data:`GLOBAL_ALPHA`), ``groups`` the
+    control points' w-test alarms per testable observation (the ties' w-tests are the snooping's: see
+    :func:`sequence_note`)."""
+    quality = [r["quality"] for r in runs]
+    return dict(sigma0=[np.sqrt(q["control_test"][0] / q["control_test"][1]) for q in quality],
+                rejected=[q["control_p"] < GLOBAL_ALPHA for q in quality],
+                groups={"control": tuple(int(sum(w_alarms(*q["w"]["control"])[k] for q in quality))
+                                         for k in range(2))})
+
+
+def sequence_note(runs) -> str:
+    """What the sequence adjustment's tests in the table are, and those not in its columns: the whole adjustment's
+    σ̂0 and global test (its tie σ rescaled by the estimated variance factors), the tie groups' removals (real
+    mismatches among them: not a false-alarm rate), the estimated variance factors."""
+    quality = [r["quality"] for r in runs]
+    whole = np.array([q["sigma0"] for q in quality])
+    rejected = sum(q["global_p"] < GLOBAL_ALPHA for q in quality)
+    low, high = wilson(rejected, len(quality))
+    removed, rows = sum(q["removed_rows"] for q in quality), sum(q["tie_rows"] for q in quality)
+    tie_alarms, tie_testable = (sum(w_alarms(*q["w"]["ties"])[k] for q in quality) for k in range(2))
+    factors = np.array([v for q in quality for v in q["variance_factors"].values()])
+    dof = np.median([q["control_test"][1] for q in quality])
+    return (f"σ̂0 and global test of this line: the control points' group test against the rest of the "
+            f"adjustment with their σ given, T = ṽᵀR⁻¹ṽ ~ χ²(q), q = {dof:.0f} coordinates a sequence (column: "
+            f"√mean(T/q)); w-test: the control points' (the simulation's are blunder-free). The whole adjustment "
+            f"(tie σ rescaled by the estimated variance factors, median {np.median(factors):.3f}, range "
+            f"{factors.min():.3f}-{factors.max():.3f}): √mean σ̂0² {np.sqrt(np.mean(whole**2)):.3f}, its global test "
+            f"rejected {rejected}/{len(quality)} ({100 * low:.1f}-{100 * high:.1f} %) — but the estimated factors "
+            f"make the ties' Σ(v/σ)² equal their redundancy, so it tests little beyond the control points. Ties: "
+            f"the snooping removed {removed} of {rows} tie observations = {removed / max(rows, 1) / W_ALPHA:.1f} α "
+            f"(whole ties: the matcher's real mismatches among them; not a false-alarm rate); in the final "
+            f"adjustment {tie_alarms}/{tie_testable} testable tie observations flagged (0 by construction)")
 
 
 def row_sequence(seeds, quick: bool = False, deadline=None) -> list[dict]:
@@ -399,16 +460,18 @@ def row_sequence(seeds, quick: bool = False, deadline=None) -> list[dict]:
     if not runs:
         return []
     done = [r["seed"] for r in runs]
+    shape = f"{SEQUENCE_IMAGES} images of {SEQUENCE_SIZE} x {SEQUENCE_SIZE}"
     out = []
-    for method in (SEQUENCE_METHOD, "per image, 12 control points"):
+    for method in (SEQUENCE_METHOD, SEQUENCE_PER_IMAGE):
         if method not in runs[0]:
             continue
-        drift = [r[method]["drift"] / np.asarray(r[method]["drift_sigma"]).reshape(-1, 2) for r in runs]
+        tests = dict(**sequence_tests(runs), note=sequence_note(runs)) if method == SEQUENCE_METHOD else {}
         out.append(entry(f"sequence ({method}): drift due to the models",
-                         f"`displacement_sigma` of the joint covariance, {SEQUENCE_IMAGES} images of "
-                         f"{SEQUENCE_SIZE} x {SEQUENCE_SIZE}", done, drift))
-        out.append(entry(f"sequence ({method}): model error", "position σ of random pixels", done,
-                         [np.asarray(r[method]["model"]) / np.asarray(r[method]["model_sigma"]) for r in runs]))
+                         f"`displacement_sigma` (x, y) of the joint covariance, {shape}, every pack-ice cell", done,
+                         [r[method]["drift"] / r[method]["drift_sigma"] for r in runs], **tests))
+        out.append(entry(f"sequence ({method}): model error", "position σ (north, east) at 400 random pixels an "
+                         "image", done,
+                         [r[method]["model_north_east"] / r[method]["model_sigma_north_east"] for r in runs]))
     return out
 
 
@@ -550,7 +613,7 @@ def timing_text(row: str, times) -> str:
 
 
 def main(argv=None):
-    global _cache_dir
+    global _cache_dir, _sequence_ties
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--rows", default="orbit,coast,tracking,deformation,block,block_strip,sequence",
                         help="comma-separated: " + ", ".join(ROWS))
@@ -563,9 +626,13 @@ def main(argv=None):
                         help="compute nothing: the table of the cached seeds (all from each row's first on, unless "
                         "--seeds)")
     parser.add_argument("--cache", type=Path, default=CACHE)
+    parser.add_argument("--sequence-ties", type=Path, default=None,
+                        help="the sequence row: a folder of experiments/sequence_block.py's matched ties per seed "
+                        "(its --cache: ties_<seed>.pkl), read where present, written where not (default: match anew)")
     parser.add_argument("--out", type=Path, default=RESULTS / "calibration.md")
     args = parser.parse_args(argv)
     _cache_dir = args.cache
+    _sequence_ties = args.sequence_ties
     names = [n.strip() for n in args.rows.split(",") if n.strip()]
     unknown = [n for n in names if n not in ROWS]
     if unknown:

@@ -75,6 +75,7 @@ from seaice_jax import (
     track,
     wrap_angle,
 )
+from seaice_jax.adjust.engine.problem import linearize
 from seaice_jax.adjust.orbit.fit import position_jacobian
 from seaice_jax.adjust.orbit.multi_image import sequential_fit
 from seaice_jax.adjust.sequence.adjustment import sequence_problem, systematic_tie_covariance
@@ -103,14 +104,16 @@ def static_surface(scene):
 
 
 def model_error(fitted, true, covariance, rng, size, count=400):
-    """Ground distance (m) between the fitted and the true model's positions of random pixels, and its stated σ
-    there (√ of the trace of the position covariance from the model's ``(5, 5)`` covariance)."""
+    """At ``count`` random pixels: the ground distance (m) between the fitted and the true model's positions and
+    its stated σ there (√ of the trace of the position covariance from the model's ``(5, 5)`` covariance), each
+    ``(count,)``; and the same per coordinate: the error (north, east) and its stated σ, ``(count, 2)`` m each."""
     pixel, scan = rng.uniform(1, size, count), rng.uniform(1, size, count)
     lat_f, lon_f = (np.asarray(a) for a in fitted.forward(pixel, scan))
     lat_t, lon_t = (np.asarray(a) for a in true.forward(pixel, scan))
     jacobian = np.asarray(position_jacobian(fitted, pixel, scan))
-    sigma = np.sqrt(np.einsum("nij,jk,nik->n", jacobian, covariance, jacobian))
-    return MEAN_RADIUS * np.hypot(lat_f - lat_t, np.asarray(wrap_angle(lon_f - lon_t)) * np.cos(lat_t)), sigma
+    variance = np.einsum("nij,jk,nik->ni", jacobian, covariance, jacobian)  # (count, 2) north, east
+    north_east = MEAN_RADIUS * np.stack([lat_f - lat_t, np.asarray(wrap_angle(lon_f - lon_t)) * np.cos(lat_t)], 1)
+    return np.hypot(north_east[:, 0], north_east[:, 1]), np.sqrt(variance.sum(1)), north_east, np.sqrt(variance)
 
 
 def apparent(scene, fitted, true, xy, size):
@@ -235,6 +238,71 @@ def group_factors(result):
     return {kind: square / redundancy for kind, (square, redundancy) in sums.items() if redundancy > 0}
 
 
+def control_rows(result):
+    """The control-point observations of ``result`` (a ``SequenceAdjustment``) at its solution: their whitened
+    residuals (computed − known over σ) ``(q,)`` and their whitened Jacobian with respect to all images' unknowns
+    ``(q, 5 n_images)``, the rows of every control group, north and east of each point (padding rows left out)."""
+    problem = sequence_problem(result.observations)
+    theta, points = result.adjustment.parameters["theta"], result.adjustment.parameters["points"]
+    whitened, jacobian = [], []
+    for name, block in problem.blocks.items():
+        if not name.startswith("control"):
+            continue
+        linear = linearize(block, theta, points)
+        real = np.asarray(jnp.isfinite(block.sigma)).reshape(-1)
+        columns = np.asarray(block.global_index)  # (m, k)
+        dense = np.zeros(block.sigma.shape + (int(theta.shape[0]),))  # (m, c, n)
+        rows = np.arange(block.rows)[:, None, None]
+        np.add.at(dense, (rows, np.arange(block.components)[None, :, None], columns[:, None, :]),
+                  np.asarray(linear.theta))
+        whitened.append(np.asarray(linear.e).reshape(-1)[real])
+        jacobian.append(dense.reshape(-1, dense.shape[-1])[real])
+    if not whitened:
+        return np.zeros(0), np.zeros((0, int(theta.shape[0])))
+    return np.concatenate(whitened), np.concatenate(jacobian)
+
+
+def group_test(whitened, jacobian, cofactor):
+    """Test of a group of observations without unknowns of its own (the control points) against the rest of the
+    adjustment, their σ taken as given (Teunissen, *Testing Theory*, 2000: the test of an arbitrary bias in the
+    group): T = ṽᵀ R⁻¹ ṽ ~ χ²(q) when the model and every σ are right, with ṽ ``(q,)`` the group's whitened
+    residuals, J ``(q, n)`` their whitened Jacobian and Q ``(n, n)`` the cofactor of the unknowns, R = I − J Q Jᵀ
+    the group's block of the redundancy matrix. Returns ``(T, q, diag R (q,))`` (diag R: the redundancy numbers)."""
+    whitened, jacobian = np.asarray(whitened, float), np.asarray(jacobian, float)
+    redundancy = np.eye(whitened.size) - jacobian @ np.asarray(cofactor, float) @ jacobian.T
+    return float(whitened @ np.linalg.solve(redundancy, whitened)), int(whitened.size), np.diag(redundancy).copy()
+
+
+def adjustment_quality(result):
+    """The sequence adjustment's own statistics, for ``experiments/calibration.py``: ``sigma0`` and
+    ``degrees_of_freedom`` of the final adjustment (its tie σ rescaled by the estimated ``variance_factors``),
+    ``global_p`` its χ² test's two-sided p-value; ``control_test`` ``(T, q)`` of :func:`group_test` and
+    ``control_p`` its p-value; ``w`` ``{"control" | "ties": (w (m,), redundancy (m,))}`` of the final adjustment's
+    real rows (removed ties: σ = ∞, redundancy 0); ``tie_rows``: the tie observations (coordinates) before the
+    removals, ``removed_rows`` those of the removed ties, ``removed_ties`` their number."""
+    from scipy.stats import chi2
+
+    adjustment = result.adjustment
+    w = {}
+    for name, group in result.observations.groups.items():
+        kind = name.split()[0]
+        values = np.asarray(adjustment.standardized_residuals[name])[:group.rows].reshape(-1)
+        redundancy = np.asarray(adjustment.redundancy[name])[:group.rows].reshape(-1)
+        old = w.get(kind, (np.zeros(0), np.zeros(0)))
+        w[kind] = (np.concatenate([old[0], values]), np.concatenate([old[1], redundancy]))
+    tie_sigma = [np.asarray(g.sigma) for n, g in result.observations.groups.items() if n.startswith("ties")]
+    tie_rows = int(sum(s.size for s in tie_sigma))
+    removed_rows = int(sum(np.sum(~np.isfinite(s)) for s in tie_sigma))
+    statistic, count, _ = group_test(*control_rows(result), result.cofactor)
+    dof = int(result.degrees_of_freedom)
+    global_statistic = float(result.sigma0) ** 2 * dof
+    return {"sigma0": float(result.sigma0), "degrees_of_freedom": dof,
+            "global_p": float(2 * min(chi2.cdf(global_statistic, dof), chi2.sf(global_statistic, dof))),
+            "variance_factors": dict(result.variance_factors), "control_test": (statistic, count),
+            "control_p": float(2 * min(chi2.cdf(statistic, count), chi2.sf(statistic, count))), "w": w,
+            "tie_rows": tie_rows, "removed_rows": removed_rows, "removed_ties": result.n_removed}
+
+
 def plant_mismatches(ties, rng, fraction=0.05):
     """``ties`` with one matched observation of ``fraction`` of the ties moved 5-20 pixels in a random direction,
     and the set of those ties."""
@@ -249,7 +317,14 @@ def plant_mismatches(ties, rng, fraction=0.05):
     return replace(ties, pixel=pixel, scan=scan), {int(t) for t in chosen}
 
 
-def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, cache=None):
+def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, cache=None, drift_labels=None):
+    """One simulated sequence of ``images`` images of ``size`` x ``size`` pixels (module docstring), ``seed`` its
+    seed: per method (label) the model errors and their stated σ at random pixels (``model``, ``model_sigma``
+    distances; ``model_north_east``, ``model_sigma_north_east`` per coordinate, m) and the exact drift errors
+    and their stated σ (``drift``, ``drift_sigma`` ``(n, 2)`` m; only for the labels in ``drift_labels``, default
+    all), the ties' stochastic-model measurements, and ``quality``, the 12-point simultaneous adjustment's own
+    statistics (:func:`adjustment_quality`). ``counts``: the control-point sweep (``()``: none; the summary needs
+    2); ``cache``: the folder of the matched ties (:func:`matched_ties`)."""
     rng = np.random.default_rng(20_000 + seed)
     sequence = simulate_sequence(seed, n_images=images, size=size, pointing_sigma=POINTING)
     scene = sequence.scene
@@ -301,20 +376,28 @@ def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, ca
         list(result.models), phase_only_covariance(result, size)) for count, result in [(12, block12), *sweep.items()]})
     cells = np.stack([np.asarray(a) for a in grid.xy()], -1).reshape(-1, 2)
     pack = cells[np.asarray(scene.is_pack(cells))]
-    out = {"ties": [ties.n_ties, predicted_ties.n_ties], "removed": [block12.n_removed, sweep[2].n_removed],
+    two = sweep.get(2)  # the summary's 2-point lines (None without the sweep)
+    out = {"ties": [ties.n_ties, predicted_ties.n_ties],
+           "removed": [block12.n_removed, np.nan if two is None else two.n_removed],
            "tie_time": tie_time, "adjust_time": adjust_time, "tie_error": tie_error, "tie_sigma": tie_sigma,
            "field": field,
-           "factors": [block12.variance_factors, sweep[2].variance_factors],
-           "group_factors": [group_factors(block12), group_factors(sweep[2])],
-           "planted": len(planted)}
+           "factors": [block12.variance_factors, {} if two is None else two.variance_factors],
+           "group_factors": [group_factors(block12), {} if two is None else group_factors(two)],
+           "planted": len(planted), "quality": adjustment_quality(block12)}
     if planted_run is not None:
         out.update({"planted_found": len(planted & set(planted_run.removed_ties)),
                     "false_removed": len(set(planted_run.removed_ties) - planted - set(block12.removed_ties)),
                     "planted_shift": float(np.max(np.abs(planted_run.theta - block12.theta) / theta_sigma))})
     drift_errors = {}  # the methods of one set of models share their exact drift errors
     for label, (models, covariance) in methods.items():
-        errors, model_sigma = zip(*[model_error(m, t, covariance[5 * k:5 * k + 5, 5 * k:5 * k + 5], rng, size)
-                                    for k, (m, t) in enumerate(zip(models, truth, strict=True))], strict=True)
+        errors, model_sigma, north_east, north_east_sigma = zip(*[
+            model_error(m, t, covariance[5 * k:5 * k + 5, 5 * k:5 * k + 5], rng, size)
+            for k, (m, t) in enumerate(zip(models, truth, strict=True))], strict=True)
+        out[label] = {"model": np.concatenate(errors), "model_sigma": np.concatenate(model_sigma),
+                      "model_north_east": np.concatenate(north_east),
+                      "model_sigma_north_east": np.concatenate(north_east_sigma)}
+        if drift_labels is not None and label not in drift_labels:
+            continue
         drift, predicted_sigma = [], []
         for k in range(images - 1):
             a, b = sequence.images[k], sequence.images[k + 1]
@@ -330,9 +413,7 @@ def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, ca
             moved = end[keep] - pack[keep]
             predicted_sigma.append(displacement_sigma(models[k:k + 2], pair, grid, pack[keep, 0], pack[keep, 1],
                                                       moved[:, 0], moved[:, 1], 0.0))
-        out[label] = {"model": np.concatenate(errors), "model_sigma": np.concatenate(model_sigma),
-                      "drift": np.concatenate(drift),
-                      "drift_sigma": np.concatenate(predicted_sigma)}
+        out[label].update(drift=np.concatenate(drift), drift_sigma=np.concatenate(predicted_sigma))
     if tracked:
         for label in [k for k in methods if "12" in k]:
             models, covariance = methods[label]

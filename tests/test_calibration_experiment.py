@@ -19,7 +19,37 @@ def test_quick_table_has_rows_with_finite_ratios(tmp_path):
     labels = [row.split(" | ")[0].lstrip("| ") for row in rows]
     assert [label.split(":")[0] for label in labels] == ["deformation"] * 4 + ["orbit fit"] * 2
     for row in rows:
-        ratio = float(re.search(r"\*\*([0-9.naninf]+)\*\*", row).group(1))
+        found = re.search(r"\*\*([0-9.naninf]+)\*\*", row)
+        assert found, row
+        ratio = float(found.group(1))
         assert math.isfinite(ratio) and ratio > 0, row
     assert re.search(r"\d+/3 = ", rows[-2]), rows[-2]  # the orbit fit carries its global test over the 3 seeds
     assert (tmp_path / "cache" / "orbit" / "50000.pkl").exists()  # every realization cached
+
+
+def test_group_test_is_the_drop_in_square_sum_when_the_group_may_be_biased():
+    """sequence_block.group_test on a linear model y = A x + e (σ = 1): T = ṽᵀR⁻¹ṽ of the group's rows equals the
+    square sum of all residuals less that of the adjustment without the group (the test of an arbitrary bias in
+    it), and diag R is the group's redundancy numbers."""
+    import importlib.util
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    group_test = module.group_test
+
+    rng = np.random.default_rng(3)
+    design, group = rng.normal(size=(30, 4)), np.arange(6)
+    observed = design @ rng.normal(size=4) + rng.normal(size=30)
+    cofactor = np.linalg.inv(design.T @ design)
+    residual = design @ (cofactor @ design.T @ observed) - observed
+    others = design[6:]
+    rest = others @ np.linalg.lstsq(others, observed[6:], rcond=None)[0] - observed[6:]
+    statistic, count, redundancy = group_test(residual[group], design[group], cofactor)
+    assert count == 6
+    assert np.isclose(statistic, residual @ residual - rest @ rest, rtol=1e-10)
+    hat = design @ cofactor @ design.T
+    assert np.allclose(redundancy, 1.0 - np.diag(hat)[group])
