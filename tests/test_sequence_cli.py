@@ -7,7 +7,7 @@ import pytest
 
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
-from seaice_jax.imagery.tracking import ON_LAND
+from seaice_jax.imagery.tracking import MIXED_MOTION, ON_LAND
 from seaice_jax.io.remapped import load_remapped
 from seaice_jax.io.sequence import read_sequence
 from seaice_jax.simulate.satellite import simulate_sequence, true_displacement
@@ -55,13 +55,15 @@ def test_track_writes_cf_drift_whose_vectors_follow_the_ice(workflow):
         dx, dy = ds["dX"].values[0], ds["dY"].values[0]
         sigma = ds["dX_uncertainty"].values[0]
         at_sea = ds["status_flag"].values[0] != ON_LAND  # land is masked by default (GSHHG)
+        coastal = ds["status_flag"].values[0] == MIXED_MOTION  # land in the patch, or the fast-ice edge
         assert ds["u_grid"].attrs["long_name"].startswith("velocity along the grid's x axis")
         assert ds["u_east"].attrs["standard_name"] == "eastward_sea_ice_velocity"
         assert ds["divergence"].size > 10 and "divergence_uncertainty" in ds["divergence"].attrs[
             "ancillary_variables"]
         assert np.all(ds["divergence_uncertainty"].values > 0)
     good = np.isfinite(dx)
-    assert good[at_sea].mean() > 0.5 and 0.1 < 1 - at_sea.mean() < 0.6
+    # a scene of sounds and coasts: most vectors at sea have land or the fast-ice edge in their patch
+    assert (good | coastal)[at_sea].mean() > 0.5 and good.sum() > 10 and 0.1 < 1 - at_sea.mean() < 0.6
     first, second = sequence.images[:2]
     truth = true_displacement(sequence.scene, np.stack([x[good], y[good]], 1), first.time, second.time)
     error = np.hypot(dx[good] - truth[:, 0], dy[good] - truth[:, 1])
@@ -93,7 +95,7 @@ def test_track_layout_osisaf_writes_both_layouts_of_the_same_vectors(workflow, t
         with (xr.open_dataset(own_path) as own, xr.open_dataset(osi_path) as osi,
               xr.open_dataset(root / "drift" / own_path.name) as default):
             good = np.isfinite(own["dX"].values)
-            assert good.sum() > 10
+            assert good.sum() > 5  # most vectors at sea are by a coast or the fast-ice edge (MIXED_MOTION)
             np.testing.assert_array_equal(own["dX"].values, default["dX"].values)
             np.testing.assert_allclose(osi["dX"].values[good] * 1000.0, own["dX"].values[good], rtol=1e-6)
             expected = np.vectorize(TO_OSISAF_STATUS.get)(own["status_flag"].values)

@@ -123,7 +123,7 @@ def _image_sequence(out_dir: Path, images: int, size: int, say: Callable[[str], 
              f"length median / RMS: {errors['per image'][0]:.2f} / {errors['per image'][1]:.2f} km with the "
              f"per-image fits (1985), {errors['adjusted'][0]:.2f} / {errors['adjusted'][1]:.2f} km with the "
              f"simultaneous adjustment, {errors['true'][0]:.2f} / {errors['true'][1]:.2f} km with the true models; "
-             "the RMS comes from vectors straddling the fast-ice edge and cloud edges"]
+             "good vectors only: those whose patch straddles the fast-ice edge or a coast are flagged mixed motion"]
     return lines, [*adjusted.files, *remapped.files, *tracked.files, *speeds.files, *film.files]
 
 
