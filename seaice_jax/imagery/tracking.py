@@ -55,7 +55,7 @@ its patch is taken to see two motions (:func:`neighbour_disagreement`). Tuned on
 1.2 % / 2.2 % of the vectors of one motion without land in their patch (3.2 % / 4.2 % of all of one motion with the
 land rule), and with the land rule 75 % / 76 % of the vectors whose patch straddles the fast-ice edge or the coast;
 the good vectors left are calibrated (empirical / stated σ 1.01 / 0.97; 2.45 / 2.66 without the flag). Between 3.5
-and 5 that ratio moves by under 2 %."""
+and 5 that ratio moves by 2-4 %."""
 CORRELATION_AREA = 3.3
 """Calibrated template pixels per independent sample of the tracking σ (``experiments/tracking_calibration.py``)."""
 SIGMA_FLOOR = 0.04
@@ -311,8 +311,8 @@ def patch_touches_land(land, rows, columns, half: int) -> np.ndarray:
 SATELLITE_SPACING = 1 / 3
 """Offset of a vector's satellite patches (:func:`neighbour_disagreement`) in units of the patch side: 5 pixels for
 the default 15-pixel patch, so that each satellite shares two thirds of the vector's patch (in one axis) and sees a
-third of a patch beyond it. Tuned with the threshold: at 6 pixels the test flags about twice the vectors of one
-motion for a few % more detections (the satellites reach fast ice the vector's own patch does not)."""
+third of a patch beyond it. Tuned with the threshold: at 6 pixels the test flags two to three times the vectors of
+one motion for 4 % more detections (the satellites reach fast ice the vector's own patch does not)."""
 MIN_SATELLITES = 4
 """Good satellite patches a vector needs for :func:`neighbour_disagreement` (fewer: NaN, not tested)."""
 
@@ -322,8 +322,9 @@ def neighbour_disagreement(first, second, rows, columns, options: TrackingOption
     """``(n,)`` χ² per degree of freedom of the displacement at each position ``rows, columns`` ``(n,)`` (pixels)
     and those of its eight satellites (patches offset by ±``SATELLITE_SPACING`` x the patch side in row and
     column, tracked as :func:`track` tracks a point, land or not) about their weighted mean, with each one's
-    σ from its peak: about 1 where the patch and its surroundings move as one (neighbouring patches share pixels,
-    so the values are not χ²-distributed; the threshold is tuned, :data:`MIXED_MOTION_THRESHOLD`), large where a
+    σ from its peak: of order 1 or less where the patch and its surroundings move as one (median 1.1 over the
+    simulated pairs of the tuning; neighbouring patches share pixels, so the values are not χ²-distributed and the
+    threshold is tuned, :data:`MIXED_MOTION_THRESHOLD`), large where a
     patch straddles two motions (pack ice beside fast ice or land: the vector mixes both, its σ describes neither).
     NaN where fewer than :data:`MIN_SATELLITES` satellites are good. ``first, second, guess, valid_first,
     valid_second``: as for :func:`track`."""
@@ -341,7 +342,7 @@ def _neighbour_disagreement(images, rows, columns, guess_row, guess_column, opti
     """:func:`neighbour_disagreement` on prepared ``images`` (:func:`_prepared`). Every patch is tracked at whole
     pixels (the position rounded), once: neighbouring vectors share satellites."""
     offset = max(1, round(SATELLITE_SPACING * options.patch))
-    steps = [(0, 0)] + [(p, q) for p in (-offset, 0, offset) for q in (-offset, 0, offset) if (p, q) != (0, 0)]
+    steps = [(p, q) for p in (-offset, 0, offset) for q in (-offset, 0, offset) if (p, q) != (0, 0)]
     measured = {}
 
     def displacement(row: int, column: int, guess: tuple[int, int]):
@@ -356,7 +357,7 @@ def _neighbour_disagreement(images, rows, columns, guess_row, guess_column, opti
     for k in np.nonzero(np.isfinite(rows) & np.isfinite(columns))[0]:
         row, column, guess = round(rows[k]), round(columns[k]), (round(guess_row[k]), round(guess_column[k]))
         centre = displacement(row, column, guess)
-        satellites = [v for p, q in steps[1:] if (v := displacement(row + p, column + q, guess)) is not None]
+        satellites = [v for p, q in steps if (v := displacement(row + p, column + q, guess)) is not None]
         if centre is not None and len(satellites) >= MIN_SATELLITES:
             result[k] = _scatter_about_mean(np.array([centre, *satellites]))
     return result
