@@ -310,7 +310,9 @@ def row_orbit(seeds, quick: bool = False, deadline=None) -> list[dict]:
 
 def coast_realization(seed: int) -> dict:
     """One image of ``experiments/coast_control_calibration.py`` rectified by the coastline control (the
-    package's ``MATCH_SIGMA_SCALE``), with the rectified model's error and stated σ at check pixels."""
+    package's ``MATCH_SIGMA_SCALE`` and correlated-error model ``CoastErrors()``), with the rectified model's error
+    and stated σ at check pixels, the fit's global test (``rejected``; ``rejected_plain``: χ² with r degrees of
+    freedom, as if the errors were normal) and the kept points' image positions."""
     from coast_control_calibration import rectified
 
     from seaice_jax.adjust.engine.quality import global_test
@@ -323,8 +325,11 @@ def coast_realization(seed: int) -> dict:
     pixel, scan = check_pixels(rng, truth.n_pixels, truth.n_scans)
     r["check_error"] = north_east_error(fit.model, truth, pixel, scan)
     r["check_sigma"] = np.stack([np.asarray(s) for s in position_uncertainty(fit, pixel, scan)], 1)
+    tested = fit.global_test(GLOBAL_ALPHA)  # the fit's own test (its errors' kurtosis: MATCH_ERROR_KURTOSIS)
+    r["rejected"] = tested is not None and not tested[1]
     _, _, accepted = global_test(r["sigma0"] ** 2, r["dof"], GLOBAL_ALPHA)
-    r["rejected"] = not bool(accepted)
+    r["rejected_plain"] = not bool(accepted)  # χ² with r degrees of freedom (normal errors)
+    r["pixel"], r["scan"] = np.asarray(fit.control.pixel), np.asarray(fit.control.scan)
     return r
 
 
@@ -346,13 +351,18 @@ def row_coast(seeds, quick: bool = False, deadline=None) -> list[dict]:
     common = np.array([common_error(r["error"], r["sigma"]) for r in runs])
     note += (f"; the kept points' weighted mean error per image over its σ if the points were independent: RMS "
              f"{np.sqrt(np.mean(common**2)):.2f} (1 if independent), mean north {common[:, 0].mean():+.2f}, east "
-             f"{common[:, 1].mean():+.2f} (± {1 / np.sqrt(len(runs)):.2f}): errors shared by an image's points, "
-             "which the fit's covariance (independent points) does not know")
+             f"{common[:, 1].mean():+.2f} (± {1 / np.sqrt(len(runs)):.2f}): errors shared by an image's points "
+             "(in the fit's covariance since issue 29: CoastErrors)")
+    if all("rejected_plain" in r for r in runs):
+        plain = sum(r["rejected_plain"] for r in runs)
+        note += (f"; the global test as if the errors were normal (χ² with r degrees of freedom, not the fit's "
+                 f"r' = 2r/(κ − 1)): {plain}/{len(runs)} rejected")
     tests = dict(sigma0=[r["sigma0"] for r in runs], rejected=[r["rejected"] for r in runs], note=note)
     return [entry("coast control: control points kept", "each point's σ (MATCH_SIGMA_SCALE x the correlation "
                   "peak's), true ground error north/east", done,
                   [r["error"] / r["sigma"][:, None] for r in runs], **tests),
-            entry("coast control: rectified model at check pixels", "position σ (a posteriori) at 25 check pixels",
+            entry("coast control: rectified model at check pixels", "position σ (a posteriori; the points' "
+                  "correlated errors in the fit's covariance) at 25 check pixels",
                   done, [r["check_error"] / r["check_sigma"] for r in runs])]
 
 

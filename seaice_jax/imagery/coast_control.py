@@ -21,20 +21,29 @@ of a coarse-to-fine loop:
    metres with the local pixel size;
 4. fits the scan model (:func:`~seaice_jax.adjust.orbit.fit.fit_scan_model`) and removes, one at a time, the point
    with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.engine.quality`),
-   refitting each time.
+   refitting each time. The points' errors are not independent (issue 29): matches whose windows overlap share
+   pixels (:data:`MATCH_OVERLAP_CORRELATION`), and the coastline database and the imaged coast disagree by an error
+   field all of one image's points share (a shift, :data:`COAST_DATUM_SIGMA`, and gradients,
+   :data:`COAST_DATUM_GRADIENT_SIGMA`), so every fit is solved with these in the points' covariance
+   (:func:`coast_point_covariance`, :func:`correlated_fit`): the model's covariance, σ̂0 and the w-tests account
+   for them; the global test also for the errors' heavy tails (:data:`MATCH_ERROR_KURTOSIS`).
 
 The next level starts from the fitted model with a smaller search, smaller windows and less smoothing.
 """
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from seaice_jax.adjust.orbit.fit import OrbitFit, fit_scan_model
+from seaice_jax.adjust.engine.quality import noncentrality
+from seaice_jax.adjust.orbit.fit import FREE_PARAMETERS, OrbitFit, fit_scan_model, position_jacobian
 from seaice_jax.errors import SeaiceError
+from seaice_jax.geometry.earth import MEAN_RADIUS
 from seaice_jax.geometry.scan import ScanModel
 from seaice_jax.sensors.control import ControlPoints
 
@@ -97,6 +106,8 @@ class CoastControl:
         model: the final fitted :class:`ScanModel`. fit: its :class:`OrbitFit` (control points, w-tests).
         rejected: ids of the points removed by the w-test, per level. matched: control points proposed per level.
         shift: ``(pixel, scan)`` the whole image's shift found at the first level (how far off the start was).
+        window: side (pixels) of the last level's windows, which the final points were matched with (their
+            correlation: :func:`coast_point_covariance`).
     """
 
     model: ScanModel
@@ -104,6 +115,7 @@ class CoastControl:
     rejected: tuple[tuple[str, ...], ...]
     matched: tuple[int, ...]
     shift: tuple[float, float]
+    window: int = 0
 
 
 def predicted_land(model: ScanModel, land: LandTest) -> np.ndarray:
@@ -291,12 +303,222 @@ so that the fits of every level and image share a few compiled shapes."""
 _NO_WEIGHT = 1e12
 """σ (m) of a padding or rejected point: no weight in the fit, no redundancy, w = 0."""
 
+MATCH_OVERLAP_CORRELATION = 0.70
+"""c (dimensionless): the correlation of two coastline matches' errors (per ground axis) is c times the share of
+pixels their windows have in common (:func:`window_overlap`). Maximum likelihood on the true errors of the points
+kept by :func:`coast_control` on the tuning seeds 61000-61039 (40 images of
+``experiments/coast_control_calibration.py``, 3323 points; jointly with the datum terms): 0.70, ±0.05 at a
+likelihood drop of 2. Measured first as the points' empirical correlation: +0.31 for windows of 40 pixels 20 pixels
+apart (half their pixels shared), +0.12-0.17 a quarter shared, ~0.05 for neighbours sharing none."""
+
+COAST_DATUM_SIGMA = 75.0
+"""σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share —
+the coast the image shows and the coastline database (GSHHG, from which the prediction is made) differ by more
+than the matches' noise, alike for neighbouring matches. Maximum likelihood on the tuning seeds 61000-61039 (see
+:data:`MATCH_OVERLAP_CORRELATION`): 75 m (52-97 m at a likelihood drop of 2). On those seeds, the simulated
+images of Lancaster Sound (1 km coast raster, ~1.1 km pixels), the points' weighted mean error per image was
++17 ± 14 m north and −92 ± 11 m east over all images (both pass directions): this shift is part of σ_c here; it
+is not the simulator's raster, whose coast is within 10 m of the GSHHG polygon's on average (see
+``experiments/results/calibration.md``)."""
+
+COAST_DATUM_GRADIENT_SIGMA = 0.43e-3
+"""σ_g (m per m, dimensionless): σ of each of the four gradients (north and east error along north and east) of
+the error field an image's coastline points share, about their centroid — the shared mismatch of coast and
+database is not a pure shift (e.g. the matched coast ~120 m landward of the database's, on average, in the normal
+direction, which narrows a sound and shrinks an island). Maximum likelihood on the tuning seeds 61000-61039:
+0.43e-3 (0.30-0.56e-3 at a likelihood drop of 2-3.5; without it the likelihood is 26 lower)."""
+
+MATCH_ERROR_KURTOSIS = 4.3
+"""κ: the kurtosis E z⁴ / (E z²)² of the coastline points' errors whitened by their covariance
+(:func:`coast_point_covariance`), 4.3 on the tuning seeds 61000-61039 (6646 values; normal errors: 3) — heavier
+tails than normal: the matches the w-test keeps include moderately wrong ones. σ̂0² then varies (κ − 1)/r about 1,
+not 2/r (on those seeds var(σ̂0²) r / 2 = 1.80, 90 % 1.19-2.38, against (κ − 1)/2 = 1.65), so the fit's global
+test uses r' = 2r/(κ − 1) degrees of freedom (:attr:`~seaice_jax.adjust.orbit.fit.OrbitFit.error_kurtosis`)."""
+
+
+@dataclass(frozen=True)
+class CoastErrors:
+    """The coastline control points' error model beyond each point's own σ (per ground axis, north and east alike
+    and independent); the defaults are the calibrated constants.
+
+    Attributes:
+        overlap_correlation: c, dimensionless (:data:`MATCH_OVERLAP_CORRELATION`). datum_sigma: σ_c, m
+            (:data:`COAST_DATUM_SIGMA`). datum_gradient_sigma: σ_g, m per m (:data:`COAST_DATUM_GRADIENT_SIGMA`).
+        kurtosis: κ of the whitened errors, for the global test (:data:`MATCH_ERROR_KURTOSIS`).
+    """
+
+    overlap_correlation: float = MATCH_OVERLAP_CORRELATION
+    datum_sigma: float = COAST_DATUM_SIGMA
+    datum_gradient_sigma: float = COAST_DATUM_GRADIENT_SIGMA
+    kurtosis: float = MATCH_ERROR_KURTOSIS
+
+
+INDEPENDENT_POINTS = CoastErrors(0.0, 0.0, 0.0, 3.0)
+"""Independent, normal points: each its own σ only (the model before issue 29)."""
+
+_WEIGHTLESS = 1e-3 * _NO_WEIGHT
+"""σ (m) from which a point counts as padding or rejected in :func:`correlated_fit`."""
+
+
+def window_overlap(pixel, scan, window: float) -> np.ndarray:
+    """``(n, n)``: the share of pixels two square windows of side ``window`` pixels centred at ``(pixel, scan)``
+    ``(n,)`` have in common, (1 − |Δpixel|/window)₊ (1 − |Δscan|/window)₊ (1 on the diagonal; positive
+    semi-definite: the autocorrelation of a square). ``window`` 0: the identity."""
+    if window <= 0:
+        return np.eye(len(np.asarray(pixel)))
+    pixel, scan = np.asarray(pixel, float), np.asarray(scan, float)
+    along = np.clip(1.0 - np.abs(pixel[:, None] - pixel[None]) / window, 0.0, None)
+    across = np.clip(1.0 - np.abs(scan[:, None] - scan[None]) / window, 0.0, None)
+    return along * across
+
+
+def coast_point_covariance(sigma, pixel, scan, latitude, longitude, window: float,
+                           errors: CoastErrors = CoastErrors(), shared=None, radius: float = MEAN_RADIUS) -> np.ndarray:
+    """``(n, n)`` m²: the covariance of control points' errors along one ground axis (north or east alike; the axes
+    independent), Σ = S [(1 − c) I + c K] S + s sᵀ ∘ (σ_c² + σ_g² XXᵀ) among the coastline points ``s``.
+
+    The first term is each point's own error (σ from its match) with the correlation of matches whose windows
+    share pixels (K: :func:`window_overlap`); the second an error field all the coastline points share, affine on
+    the ground — a shift of σ_c per axis and gradients of σ_g (m per m) about the points' centroid (X: ``(n, 2)``
+    north/east metres from it) — where the coast in the image and in the database differ.
+
+    Args:
+        sigma: ``(n,)`` m, each point's σ (S = diag σ). pixel, scan: ``(n,)`` image positions of the points.
+        latitude, longitude: ``(n,)`` radians, their ground positions. window: pixels, side of the windows the
+            points were matched with. errors: c, σ_c, σ_g (:class:`CoastErrors`; default the calibrated ones).
+        shared: ``(n,)`` bool s, the coastline points (default all); the others (manual points) are independent
+            of every point. radius: m, of the sphere.
+    """
+    sigma = np.broadcast_to(np.asarray(sigma, float), np.shape(pixel))
+    count = len(sigma)
+    shared = np.ones(count, bool) if shared is None else np.asarray(shared, bool)
+    both = np.outer(shared, shared)
+    c = errors.overlap_correlation
+    correlation = np.where(both, (1.0 - c) * np.eye(count) + c * window_overlap(pixel, scan, window), np.eye(count))
+    latitude, longitude = np.asarray(latitude, float), np.asarray(longitude, float)
+    centred = shared & (sigma < _WEIGHTLESS)  # the centroid of the weighted coastline points
+    east = np.angle(np.exp(1j * (longitude - longitude[0]))) if count else longitude  # unwrapped next to the first
+    centre_latitude = float(np.mean(latitude[centred])) if centred.any() else 0.0
+    centre_east = float(np.mean(east[centred])) if centred.any() else 0.0
+    offsets = radius * np.stack([latitude - centre_latitude, np.cos(centre_latitude) * (east - centre_east)], 1)
+    field = errors.datum_sigma**2 + errors.datum_gradient_sigma**2 * (offsets @ offsets.T)
+    return sigma[:, None] * correlation * sigma[None] + np.where(both, field, 0.0)
+
+
+def _with_unknowns(model: ScanModel, values) -> ScanModel:
+    """``model`` with its five unknowns (:data:`~seaice_jax.adjust.orbit.fit.FREE_PARAMETERS`) set to ``values``."""
+    return eqx.tree_at(lambda m: tuple(getattr(m, name) for name in FREE_PARAMETERS), model,
+                       replace=tuple(jnp.asarray(v, float) for v in values))
+
+
+def _unknowns(model: ScanModel) -> np.ndarray:
+    """``(5,)`` the model's unknowns in the order of :data:`~seaice_jax.adjust.orbit.fit.FREE_PARAMETERS`."""
+    return np.array([float(getattr(model, name)) for name in FREE_PARAMETERS])
+
+
+def _axis_weight(covariance: np.ndarray, weighted: np.ndarray) -> np.ndarray:
+    """``(n, n)`` 1/m²: the inverse of ``covariance`` over the ``weighted`` points, zero for the others."""
+    index = np.flatnonzero(weighted)
+    weight = np.zeros_like(covariance)
+    block = covariance[np.ix_(index, index)]
+    factor = np.linalg.cholesky(block)
+    inverse = np.linalg.inv(factor)
+    weight[np.ix_(index, index)] = inverse.T @ inverse
+    return weight
+
+
+def correlated_fit(fit: OrbitFit, covariance, iterations: int = 2) -> OrbitFit:
+    """``fit`` solved again with correlated control points: ``covariance`` ``(n, n)`` m² of the points' errors
+    along each ground axis, north and east alike and independent of each other (e.g.
+    :func:`coast_point_covariance`). Points of σ ≥ :data:`_WEIGHTLESS` (padding, removed points) have no weight.
+
+    Generalized least squares in local north/east metres (east on the known parallel; Jacobian
+    :func:`~seaice_jax.adjust.orbit.fit.position_jacobian`), ``iterations`` Gauss-Newton steps from the fit's model
+    (the solution for independent points; the steps are small).
+
+    Returns:
+        the fit with its model and adjustment replaced: parameters; cofactor ``(5, 5)`` (JᵀΣ⁻¹J)⁻¹; covariance
+        σ̂0² · cofactor; σ̂0 = √(vᵀΣ⁻¹v / r) (r unchanged); per observation (latitude, longitude; radians where the
+        engine has them) residuals v (computed − known), redundancy numbers (Q_vv Σ⁻¹)_ii, w = (Σ⁻¹v)_i /
+        √(Σ⁻¹Q_vvΣ⁻¹)_ii, minimal detectable bias, estimated error −(Σ⁻¹v)_i / (Σ⁻¹Q_vvΣ⁻¹)_ii, and each w's largest
+        |correlation| with another (flat index: latitudes, then longitudes). Weightless points have redundancy 0
+        and w 0. A diagonal ``covariance`` (σ_i²) gives the fit with independent points back.
+
+    Raises:
+        SeaiceError: the fit has no adjustment (Appendix C).
+    """
+    adjustment = fit.adjustment
+    if adjustment is None:
+        raise SeaiceError("correlated control points need a Gauss-Newton fit (Appendix C gives no covariance)")
+    control = fit.control
+    count = len(control)
+    sigma = np.broadcast_to(np.asarray(control.sigma, float), (count,))
+    weighted = sigma < _WEIGHTLESS
+    weight = np.kron(np.eye(2), _axis_weight(np.asarray(covariance, float), weighted))  # north block, east block
+    known_latitude, known_longitude = np.asarray(control.latitude, float), np.asarray(control.longitude, float)
+    radius = float(fit.model.orbit.radius)
+    size = PAD * -(-count // PAD)  # evaluated on PAD-padded points: a few shapes, each compiled once
+    pixel, scan = (np.concatenate([np.asarray(a, float), np.full(size - count, float(np.asarray(a)[0]))])
+                   for a in (control.pixel, control.scan))
+
+    def linearized(model):
+        """Jacobian ``(2n, 5)`` and residuals ``(2n,)`` m of the deviations (east on the known parallel)."""
+        jacobian = np.asarray(position_jacobian(model, pixel, scan))[:count]  # (n, 2, 5), east on the model's
+        latitude, longitude = (np.asarray(a)[:count] for a in model.forward(jnp.asarray(pixel), jnp.asarray(scan)))
+        east_scale = np.cos(known_latitude) / np.cos(latitude)
+        north = (latitude - known_latitude) * radius
+        east = np.angle(np.exp(1j * (longitude - known_longitude))) * radius * np.cos(known_latitude)
+        return (np.concatenate([jacobian[:, 0], jacobian[:, 1] * east_scale[:, None]]),
+                np.concatenate([north, east]))
+
+    model = fit.model
+    for _ in range(iterations):
+        jacobian, residual = linearized(model)
+        step = -np.linalg.solve(jacobian.T @ weight @ jacobian, jacobian.T @ weight @ residual)
+        model = _with_unknowns(model, _unknowns(model) + step)
+    jacobian, residual = linearized(model)
+    cofactor = np.linalg.inv(jacobian.T @ weight @ jacobian)
+    dof = adjustment.degrees_of_freedom
+    sigma0 = float(np.sqrt(residual @ weight @ residual / dof)) if dof else float("nan")
+    hat = jacobian @ cofactor @ jacobian.T @ weight  # J Q Jᵀ Σ⁻¹
+    tested = np.concatenate([weighted, weighted])
+    redundancy = np.where(tested, 1.0 - np.diag(hat), 0.0)
+    quadratic = weight - weight @ hat  # Σ⁻¹ Q_vv Σ⁻¹
+    scale = np.sqrt(np.where(tested, np.maximum(np.diag(quadratic), 1e-300), 1.0))
+    gradient = weight @ residual
+    w = np.where(tested, gradient / scale, 0.0)
+    mdb = np.where(tested, float(noncentrality()) / scale, np.inf)
+    blunder = np.where(tested, -gradient / scale**2, np.nan)
+    correlation = np.abs(quadratic) / np.outer(scale, scale)
+    correlation[~tested, :], correlation[:, ~tested] = 0.0, 0.0
+    np.fill_diagonal(correlation, 0.0)
+    partner = np.where(correlation.max(axis=1) > 0, np.argmax(correlation, axis=1), -1)
+    per_axis = np.concatenate([np.full(count, radius), radius * np.cos(known_latitude)])
+
+    def groups(values, metres: bool = False):
+        values = values / per_axis if metres else values
+        return {"latitude": values[:count], "longitude": values[count:]}
+
+    adjustment = dataclasses.replace(
+        adjustment, parameters=model, cofactor=cofactor, covariance=sigma0**2 * cofactor, sigma0=np.asarray(sigma0),
+        residuals=groups(residual, metres=True), redundancy=groups(redundancy), standardized_residuals=groups(w),
+        minimal_detectable_bias=groups(mdb, metres=True), estimated_errors=groups(blunder, metres=True),
+        w_correlation=groups(correlation.max(axis=1)), w_partner=groups(partner))
+    return dataclasses.replace(fit, model=model, adjustment=adjustment)
+
 
 def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0.001, max_rejected: float = 0.3,
-                      final: bool = True) -> tuple[OrbitFit, tuple[str, ...]]:
+                      final: bool = True, window: float = 0.0, errors: CoastErrors = CoastErrors(),
+                      shared=None) -> tuple[OrbitFit, tuple[str, ...]]:
     """Fit the scan model (direction and image size of ``model``) and remove, one at a time, the point with the
     largest |w| beyond the critical value of ``alpha``, refitting, until none is beyond it or ``max_rejected`` (a
     fraction) of the points are gone. Returns the last fit and the removed ids.
+
+    Every fit has the coastline points' correlated errors in their covariance (:func:`coast_point_covariance` of
+    ``window``, the side in pixels of the windows they were matched with, and ``errors``; fitted by
+    :func:`correlated_fit`), so the w-tests, σ̂0 and the covariance account for them; the fit's global test uses
+    ``errors.kurtosis``. ``shared``: ``(n,)`` bool, the coastline points (default all); manual points joined to
+    them are not.
 
     The loop fits padded point sets (:data:`PAD`) in which a removed point keeps its place with no weight; with
     ``final`` the kept points are fitted once more on their own, so that the returned fit's σ̂0, redundancies and
@@ -307,12 +529,22 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
                                                for a in (control.pixel, control.scan, control.latitude,
                                                          control.longitude, control.sigma))
     active = np.arange(size) < len(control)
+    shared = np.ones(len(control), bool) if shared is None else np.asarray(shared, bool)
+    shared_padded = np.concatenate([shared, np.zeros(padding, bool)])
     ids = [*control.ids, *(f"pad{k}" for k in range(padding))]
+    radius = float(model.orbit.radius)
+
+    def fitted(points: ControlPoints, coastal) -> OrbitFit:
+        fit = fit_scan_model(points, model.orbit, direction=model.direction, n_pixels=model.n_pixels,
+                             n_scans=model.n_scans)
+        covariance = coast_point_covariance(points.sigma, points.pixel, points.scan, points.latitude,
+                                            points.longitude, window, errors, coastal, radius)
+        return dataclasses.replace(correlated_fit(fit, covariance), error_kurtosis=errors.kurtosis)
+
     rejected: list[str] = []
     while True:
-        padded = ControlPoints(pixel, scan, latitude, longitude, np.where(active, sigma, _NO_WEIGHT), ids)
-        fit = fit_scan_model(padded, model.orbit, direction=model.direction, n_pixels=model.n_pixels,
-                             n_scans=model.n_scans)
+        fit = fitted(ControlPoints(pixel, scan, latitude, longitude, np.where(active, sigma, _NO_WEIGHT), ids),
+                     shared_padded)
         adjustment = fit.adjustment  # a Gauss-Newton fit: always there
         worst = [] if adjustment is None else adjustment.worst(lambda flag: flag.row if active[flag.row] else None,
                                                                alpha, groups=("latitude", "longitude"))
@@ -322,14 +554,15 @@ def fit_with_snooping(control: ControlPoints, model: ScanModel, alpha: float = 0
         rejected.append(ids[drop])
         active[drop] = False
     if final:
-        fit = fit_scan_model(control.subset(active[:len(control)]), model.orbit, direction=model.direction,
-                             n_pixels=model.n_pixels, n_scans=model.n_scans)
+        kept = active[:len(control)]
+        fit = fitted(control.subset(kept), shared[kept])
     return fit, tuple(rejected)
 
 
 def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
                   levels: tuple[MatchLevel, ...] = DEFAULT_LEVELS, minimum_points: int = 6,
-                  alpha: float = 0.001, match_sigma_scale: float = MATCH_SIGMA_SCALE) -> CoastControl:
+                  alpha: float = 0.001, match_sigma_scale: float = MATCH_SIGMA_SCALE,
+                  errors: CoastErrors = CoastErrors()) -> CoastControl:
     """Fit an image's scan model to control points found on the coastline, from a rough ``start``.
 
     Args:
@@ -339,7 +572,8 @@ def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
         search: ± pixels of the first level's whole-image search (cover the start's error: 20 km is ~17 pixels
             of a 1.2 km image). levels: the coarse-to-fine levels. minimum_points: fewer matches than this at a
             level is an error. alpha: the w-test's significance. match_sigma_scale: factor on each match's σ from
-            its peak (default: the calibrated :data:`MATCH_SIGMA_SCALE`).
+            its peak (default: the calibrated :data:`MATCH_SIGMA_SCALE`). errors: the points' correlated errors
+            (:class:`CoastErrors`; default the calibrated ones; :data:`INDEPENDENT_POINTS`: each its own σ only).
 
     Raises:
         SeaiceError: the image is not ``(start.n_scans, start.n_pixels)``; no coast is predicted in the image;
@@ -369,9 +603,10 @@ def coast_control(image, start: ScanModel, land: LandTest, search: int = 32,
                               f"(at least {minimum_points} needed): too little coast in the image, or the start is "
                               "too far off for the search")
         control = proposed_control(matches, model, prefix=f"C{k + 1}-")
-        fit, dropped = fit_with_snooping(control, model, alpha, final=k == len(levels) - 1)
+        fit, dropped = fit_with_snooping(control, model, alpha, final=k == len(levels) - 1, window=level.window,
+                                         errors=errors)
         model = fit.model
         fits.append(fit)
         rejected.append(dropped)
         matched.append(len(control))
-    return CoastControl(model, fits[-1], tuple(rejected), tuple(matched), shift)
+    return CoastControl(model, fits[-1], tuple(rejected), tuple(matched), shift, levels[-1].window)

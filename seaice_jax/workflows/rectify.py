@@ -171,7 +171,9 @@ def run_rectify(measurements: FilePath | None, *, satellite: str, altitude_km: f
             say(f"{len(fit.control)} coastline control points ({sum(len(r) for r in automatic.rejected)} rejected "
                 "by the w-test)")
             if manual is not None:
-                fit, _ = fit_with_snooping(fit.control.joined(manual), fit.model)
+                coastal = np.arange(len(fit.control) + len(manual)) < len(fit.control)  # the manual points: independent
+                fit, _ = fit_with_snooping(fit.control.joined(manual), fit.model, window=automatic.window,
+                                           shared=coastal)
         else:
             assert manual is not None
             fit = fit_scan_model(manual, orbit, direction=direction, n_pixels=n_pixels, n_scans=n_scans,

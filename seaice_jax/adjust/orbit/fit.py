@@ -228,6 +228,10 @@ class OrbitFit:
         iterations: nonlinear iterations (Gauss-Newton steps, or Appendix C position evaluations).
         adjustment: the engine's result (covariance, residuals, redundancy, w-tests); ``None`` for Appendix C.
         alternatives: ``{direction: RMS ground distance in km}`` of every direction tried.
+        error_kurtosis: κ = E z⁴ / (E z²)² of the control points' whitened errors (3: normal). σ̂0² then varies
+            (κ − 1)/r about 1, so :meth:`global_test` takes χ²(r')/r' with r' = 2r/(κ − 1) degrees of freedom (the
+            moment-matched, Satterthwaite approximation). Automatic coastline points set theirs
+            (:data:`~seaice_jax.imagery.coast_control.MATCH_ERROR_KURTOSIS`).
     """
 
     model: ScanModel
@@ -236,6 +240,7 @@ class OrbitFit:
     iterations: int
     adjustment: Adjustment | None = None
     alternatives: dict = field(default_factory=dict)
+    error_kurtosis: float = 3.0
 
     def computed_positions(self):
         """Latitude and longitude (radians) the model gives at the control points."""
@@ -288,12 +293,13 @@ class OrbitFit:
         return np.asarray(w["latitude"]), np.asarray(w["longitude"])
 
     def global_test(self, alpha: float = 0.05) -> tuple[float, bool] | None:
-        """``(p, accepted)`` of the global test of σ̂0² (χ², two-sided, at ``alpha``); ``None`` without redundancy
-        or for Appendix C."""
+        """``(p, accepted)`` of the global test of σ̂0² (χ², two-sided, at ``alpha``; with r' = 2r/(κ − 1)
+        degrees of freedom for errors of kurtosis κ = :attr:`error_kurtosis`, r for normal ones); ``None`` without
+        redundancy or for Appendix C."""
         dof = None if self.adjustment is None else self.adjustment.degrees_of_freedom
         if self.adjustment is None or dof is None or dof <= 0:
             return None
-        _, p_value, accepted = global_test(self.adjustment.sigma0**2, dof, alpha)
+        _, p_value, accepted = global_test(self.adjustment.sigma0**2, 2.0 * dof / (self.error_kurtosis - 1.0), alpha)
         return float(p_value), bool(accepted)
 
     def flagged_w_test(self, alpha=DEFAULT_ALPHA):
