@@ -270,6 +270,7 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
         status[k], *measured = _track_point(images, rows[k], columns[k], guess_row[k], guess_column[k], options)
         for name, value in zip(names, measured, strict=True):
             out[name][k] = value
+    tracked = _as_measured(rows, columns, guess_row, guess_column, status, out, ~starts_on_land)
     if land is not None:
         status[on_land(land, rows + out["d_row"], columns + out["d_column"])] = ON_LAND
     tested = median_test(Displacements(rows, columns, status=status, **out), options)
@@ -281,10 +282,20 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
     if options.mixed_motion_threshold is not None:
         good = np.nonzero(tested.good & ~mixed)[0]
         mixed[good] = _neighbour_disagreement(images, rows[good], columns[good], guess_row[good],
-                                              guess_column[good], options) > options.mixed_motion_threshold
+                                              guess_column[good], options, tracked) > options.mixed_motion_threshold
     status = tested.status.copy()
     status[tested.good & mixed] = MIXED_MOTION
     return replace(tested, status=status)
+
+
+def _as_measured(rows, columns, guess_row, guess_column, status, out, tracked) -> dict:
+    """The points ``tracked`` ``(n,)`` bool at whole pixels as :func:`_neighbour_disagreement` keeps its patches:
+    ``{(row, column, guess row, guess column): (d_row, d_column, sigma_row, sigma_column) or None}`` (None: not
+    good as :func:`_track_point` returned it), so that a satellite on a lattice point is not tracked twice."""
+    whole = tracked & (rows == np.round(rows)) & (columns == np.round(columns))
+    return {(round(rows[k]), round(columns[k]), round(guess_row[k]), round(guess_column[k])):
+            (out["d_row"][k], out["d_column"][k], out["sigma_row"][k], out["sigma_column"][k])
+            if status[k] == GOOD else None for k in np.nonzero(whole)[0]}
 
 
 def _prepared(first, second, valid_first, valid_second):
@@ -338,12 +349,14 @@ def neighbour_disagreement(first, second, rows, columns, options: TrackingOption
                                    guess_column, options)
 
 
-def _neighbour_disagreement(images, rows, columns, guess_row, guess_column, options: TrackingOptions):
+def _neighbour_disagreement(images, rows, columns, guess_row, guess_column, options: TrackingOptions,
+                            measured: dict | None = None):
     """:func:`neighbour_disagreement` on prepared ``images`` (:func:`_prepared`). Every patch is tracked at whole
-    pixels (the position rounded), once: neighbouring vectors share satellites."""
+    pixels (the position rounded), once: neighbouring vectors share satellites, and ``measured`` (as
+    :func:`_as_measured` makes it; updated) holds those tracked already."""
     offset = max(1, round(SATELLITE_SPACING * options.patch))
     steps = [(p, q) for p in (-offset, 0, offset) for q in (-offset, 0, offset) if (p, q) != (0, 0)]
-    measured = {}
+    measured = {} if measured is None else measured
 
     def displacement(row: int, column: int, guess: tuple[int, int]):
         key = (row, column, *guess)
