@@ -91,10 +91,12 @@ def _rotation(a, b, tolerance):
 
 
 def _orthogonal(columns, tolerance):
-    """Whether every pair of ``columns`` is orthogonal to ``tolerance`` (the test :func:`_rotation` applies)."""
-    norms = [_dot(c, c) for c in columns]
-    return jnp.all(jnp.stack([jnp.abs(_dot(columns[p], columns[q])) <= tolerance * jnp.sqrt(norms[p] * norms[q])
-                              for p in range(len(columns)) for q in range(p + 1, len(columns))] + [True]))
+    """Whether every pair of the ``(M, N)`` ``columns`` is orthogonal to ``tolerance`` (the test :func:`_rotation`
+    applies)."""
+    gram = jnp.sum(columns[:, :, None] * columns[:, None, :], axis=0)
+    norms = jnp.diagonal(gram)
+    off = ~jnp.eye(columns.shape[1], dtype=bool)
+    return jnp.all(jnp.where(off, jnp.abs(gram) <= tolerance * jnp.sqrt(norms[:, None] * norms[None, :]), True))
 
 
 def jacobi_svd(matrix, rotation=None, orthogonality=None):
@@ -102,37 +104,40 @@ def jacobi_svd(matrix, rotation=None, orthogonality=None):
     vt (N, N))`` with matrix = left · diag(singular) · vt, the singular values in no particular order (a zero one
     has a zero left vector).
 
-    The columns of ``matrix · V`` are rotated pairwise, a sweep through every pair at a time, until every pair is
-    orthogonal to ``orthogonality`` (|cos| of their angle; default √M·ε, roundoff) or :data:`JACOBI_SWEEPS`
-    sweeps; then the singular values are the columns' norms,
-    the left vectors the columns normalized and V the product of the rotations. ``rotation`` ``(N, N)``, an
-    orthogonal V to start from (the previous iteration's: a Jacobian that changed little needs a sweep), else the
-    identity. Elementwise operations and sums only: under ``vmap`` they vectorize across the lanes.
+    The columns of ``matrix · V`` are rotated pairwise, a sweep through every pair (p, q), p < q, in row order at a
+    time, until every pair is orthogonal to ``orthogonality`` (|cos| of their angle; default √M·ε, roundoff) or
+    :data:`JACOBI_SWEEPS` sweeps; then the singular values are the columns' norms, the left vectors the columns
+    normalized and V the product of the rotations. ``rotation`` ``(N, N)``, an orthogonal V to start from (the
+    previous iteration's: a Jacobian that changed little needs a sweep), else the identity. Elementwise operations
+    and sums only: under ``vmap`` they vectorize across the lanes. One rotation is the body of a loop over the
+    pairs (not the sweep unrolled: XLA compiled the N(N − 1)/2 rotations of the unrolled sweep in seconds).
     """
     rows, size = matrix.shape
     start = matrix if rotation is None else matrix @ rotation
     rotation = jnp.eye(size) if rotation is None else rotation
     tolerance = jnp.sqrt(float(max(rows, 1))) * jnp.finfo(matrix.dtype).eps if orthogonality is None else orthogonality
+    pairs = jnp.array([(p, q) for p in range(size - 1) for q in range(p + 1, size)], dtype=int).reshape(-1, 2)
+
+    def rotate(k, state):
+        columns, vectors = state
+        p, q = pairs[k, 0], pairs[k, 1]
+        a, b, u, v = columns[:, p], columns[:, q], vectors[:, p], vectors[:, q]
+        cosine, sine = _rotation(a, b, tolerance)
+        columns = columns.at[:, p].set(cosine * a - sine * b).at[:, q].set(sine * a + cosine * b)
+        vectors = vectors.at[:, p].set(cosine * u - sine * v).at[:, q].set(sine * u + cosine * v)
+        return columns, vectors
 
     def sweep(state):
-        columns, vectors, sweeps = list(state[0]), list(state[1]), state[2]
-        for p in range(size - 1):
-            for q in range(p + 1, size):
-                cosine, sine = _rotation(columns[p], columns[q], tolerance)
-                columns[p], columns[q] = (cosine * columns[p] - sine * columns[q],
-                                          sine * columns[p] + cosine * columns[q])
-                vectors[p], vectors[q] = (cosine * vectors[p] - sine * vectors[q],
-                                          sine * vectors[p] + cosine * vectors[q])
-        return tuple(columns), tuple(vectors), sweeps + 1
+        columns, vectors, sweeps = state
+        return *jax.lax.fori_loop(0, pairs.shape[0], rotate, (columns, vectors)), sweeps + 1
 
     def running(state):
         return (state[2] < JACOBI_SWEEPS) & ~_orthogonal(state[0], tolerance)
 
-    columns, vectors, _ = jax.lax.while_loop(running, sweep, (
-        tuple(start[:, k] for k in range(size)), tuple(rotation[:, k] for k in range(size)), jnp.zeros((), int)))
-    singular = jnp.sqrt(jnp.stack([_dot(c, c) for c in columns]))
-    left = jnp.stack(columns, axis=1) / jnp.where(singular > 0, singular, 1.0)[None, :]
-    return left, singular, jnp.stack(vectors)
+    columns, vectors, _ = jax.lax.while_loop(running, sweep, (start, rotation, jnp.zeros((), int)))
+    singular = jnp.sqrt(_dot(columns, columns))
+    left = columns / jnp.where(singular > 0, singular, 1.0)[None, :]
+    return left, singular, vectors.T
 
 
 class Factors:
