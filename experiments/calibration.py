@@ -431,12 +431,13 @@ def sequence_realization(seed: int) -> dict:
 
 def sequence_tests(runs) -> dict:
     """The simultaneous adjustment's tests over ``runs`` for :func:`entry`: ``sigma0`` √(T/q) and ``rejected`` of
-    the control points' group test (:func:`sequence_block.group_test`, α = :data:`GLOBAL_ALPHA`), ``groups`` the
-    control points' w-test alarms per testable observation (the ties' w-tests are the snooping's: see
-    :func:`sequence_note`)."""
+    the control points' group test under the stochastic model the product states (the ties' correlated and
+    systematic errors included: :func:`sequence_block.group_test` with ``systematic``; α = :data:`GLOBAL_ALPHA`),
+    ``groups`` the control points' w-test alarms per testable observation (the engine's w, of the adjustment's
+    weights; the ties' w-tests are the snooping's: see :func:`sequence_note`)."""
     quality = [r["quality"] for r in runs]
-    return dict(sigma0=[np.sqrt(q["control_test"][0] / q["control_test"][1]) for q in quality],
-                rejected=[q["control_p"] < GLOBAL_ALPHA for q in quality],
+    return dict(sigma0=[np.sqrt(q["control_test_stated"][0] / q["control_test_stated"][1]) for q in quality],
+                rejected=[q["control_p_stated"] < GLOBAL_ALPHA for q in quality],
                 groups={"control": tuple(int(sum(w_alarms(*q["w"]["control"])[k] for q in quality))
                                          for k in range(2))})
 
@@ -449,13 +450,20 @@ def sequence_note(runs) -> str:
     whole = np.array([q["sigma0"] for q in quality])
     rejected = sum(q["global_p"] < GLOBAL_ALPHA for q in quality)
     low, high = wilson(rejected, len(quality))
+    plain = sum(q["control_p"] < GLOBAL_ALPHA for q in quality)
+    plain_low, plain_high = wilson(plain, len(quality))
+    plain_ratio = np.mean([q["control_test"][0] / q["control_test"][1] for q in quality])
     removed, rows = sum(q["removed_rows"] for q in quality), sum(q["tie_rows"] for q in quality)
     tie_alarms, tie_testable = (sum(w_alarms(*q["w"]["ties"])[k] for q in quality) for k in range(2))
     factors = np.array([v for q in quality for v in q["variance_factors"].values()])
     dof = np.median([q["control_test"][1] for q in quality])
     return (f"σ̂0 and global test of this line: the control points' group test against the rest of the "
-            f"adjustment with their σ given, T = ṽᵀR⁻¹ṽ ~ χ²(q), q = {dof:.0f} coordinates a sequence (column: "
-            f"√mean(T/q)); w-test: the control points' (the simulation's are blunder-free). The whole adjustment "
+            f"adjustment with their σ given, T = ṽᵀC⁻¹ṽ ~ χ²(q), q = {dof:.0f} coordinates a sequence (column: "
+            f"√mean(T/q)), C = R + J S Jᵀ their residuals' covariance under the stated model (R the redundancy "
+            f"block, S the ties' correlated and systematic part of the covariance); with the adjustment's weights "
+            f"alone (C = R: the ties' errors independent) mean T/q {plain_ratio:.3f}, rejected {plain}/"
+            f"{len(quality)} ({100 * plain_low:.1f}-{100 * plain_high:.1f} %). w-test: the control points' (the "
+            f"engine's w; the simulation's points are blunder-free). The whole adjustment "
             f"(tie σ rescaled by the estimated variance factors, median {np.median(factors):.3f}, range "
             f"{factors.min():.3f}-{factors.max():.3f}): √mean σ̂0² {np.sqrt(np.mean(whole**2)):.3f}, its global test "
             f"rejected {rejected}/{len(quality)} ({100 * low:.1f}-{100 * high:.1f} %) — but the estimated factors "

@@ -262,26 +262,38 @@ def control_rows(result):
     return np.concatenate(whitened), np.concatenate(jacobian)
 
 
-def group_test(whitened, jacobian, cofactor):
+def group_test(whitened, jacobian, cofactor, systematic=None):
     """Test of a group of observations without unknowns of its own (the control points) against the rest of the
     adjustment, their σ taken as given (Teunissen, *Testing Theory*, 2000: the test of an arbitrary bias in the
-    group): T = ṽᵀ R⁻¹ ṽ ~ χ²(q) when the model and every σ are right, with ṽ ``(q,)`` the group's whitened
-    residuals, J ``(q, n)`` their whitened Jacobian and Q ``(n, n)`` the cofactor of the unknowns, R = I − J Q Jᵀ
-    the group's block of the redundancy matrix. Returns ``(T, q, diag R (q,))`` (diag R: the redundancy numbers)."""
+    group): T = ṽᵀ C⁻¹ ṽ ~ χ²(q) when the model and every σ are right, with ṽ ``(q,)`` the group's whitened
+    residuals, J ``(q, n)`` their whitened Jacobian, Q ``(n, n)`` the cofactor of the unknowns and C = R = I − J Q Jᵀ
+    the group's block of the redundancy matrix. With ``systematic`` S ``(n, n)``, the part of the unknowns'
+    covariance due to errors of the other observations that their weights leave out (the ties' correlated and
+    systematic errors: ``SequenceAdjustment.systematic``, independent of the group's errors), C = R + J S Jᵀ.
+    Returns ``(T, q, diag R (q,))`` (diag R: the redundancy numbers)."""
     whitened, jacobian = np.asarray(whitened, float), np.asarray(jacobian, float)
     redundancy = np.eye(whitened.size) - jacobian @ np.asarray(cofactor, float) @ jacobian.T
-    return float(whitened @ np.linalg.solve(redundancy, whitened)), int(whitened.size), np.diag(redundancy).copy()
+    covariance = redundancy if systematic is None else redundancy + jacobian @ np.asarray(systematic) @ jacobian.T
+    return float(whitened @ np.linalg.solve(covariance, whitened)), int(whitened.size), np.diag(redundancy).copy()
+
+
+def two_sided_p(statistic: float, degrees_of_freedom: float) -> float:
+    """Two-sided p-value of a χ² statistic."""
+    from scipy.stats import chi2
+
+    return float(2 * min(chi2.cdf(statistic, degrees_of_freedom), chi2.sf(statistic, degrees_of_freedom)))
 
 
 def adjustment_quality(result):
     """The sequence adjustment's own statistics, for ``experiments/calibration.py``: ``sigma0`` and
     ``degrees_of_freedom`` of the final adjustment (its tie σ rescaled by the estimated ``variance_factors``),
-    ``global_p`` its χ² test's two-sided p-value; ``control_test`` ``(T, q)`` of :func:`group_test` and
-    ``control_p`` its p-value; ``w`` ``{"control" | "ties": (w (m,), redundancy (m,))}`` of the final adjustment's
-    real rows (removed ties: σ = ∞, redundancy 0); ``tie_rows``: the tie observations (coordinates) before the
-    removals, ``removed_rows`` those of the removed ties, ``removed_ties`` their number."""
-    from scipy.stats import chi2
-
+    ``global_p`` its χ² test's two-sided p-value; ``control_test`` ``(T, q)`` of :func:`group_test` with the
+    adjustment's weights and ``control_p`` its p-value, ``control_test_stated``, ``control_p_stated`` the same with
+    the ties' correlated and systematic errors the product states (``result.systematic``); ``control`` the inputs
+    (whitened residuals, Jacobian, cofactor, systematic part); ``w`` ``{"control" | "ties": (w (m,),
+    redundancy (m,))}`` of the final adjustment's real rows (removed ties: σ = ∞, redundancy 0); ``tie_rows``: the
+    tie observations (coordinates) before the removals, ``removed_rows`` those of the removed ties,
+    ``removed_ties`` their number."""
     adjustment = result.adjustment
     w = {}
     for name, group in result.observations.groups.items():
@@ -293,13 +305,18 @@ def adjustment_quality(result):
     tie_sigma = [np.asarray(g.sigma) for n, g in result.observations.groups.items() if n.startswith("ties")]
     tie_rows = int(sum(s.size for s in tie_sigma))
     removed_rows = int(sum(np.sum(~np.isfinite(s)) for s in tie_sigma))
-    statistic, count, _ = group_test(*control_rows(result), result.cofactor)
+    whitened, jacobian = control_rows(result)
+    cofactor, systematic = np.asarray(result.cofactor), np.asarray(result.systematic)
+    statistic, count, _ = group_test(whitened, jacobian, cofactor)
+    stated, _, _ = group_test(whitened, jacobian, cofactor, systematic)
     dof = int(result.degrees_of_freedom)
-    global_statistic = float(result.sigma0) ** 2 * dof
     return {"sigma0": float(result.sigma0), "degrees_of_freedom": dof,
-            "global_p": float(2 * min(chi2.cdf(global_statistic, dof), chi2.sf(global_statistic, dof))),
+            "global_p": two_sided_p(float(result.sigma0) ** 2 * dof, dof),
             "variance_factors": dict(result.variance_factors), "control_test": (statistic, count),
-            "control_p": float(2 * min(chi2.cdf(statistic, count), chi2.sf(statistic, count))), "w": w,
+            "control_p": two_sided_p(statistic, count), "control_test_stated": (stated, count),
+            "control_p_stated": two_sided_p(stated, count),
+            "control": {"whitened": whitened, "jacobian": jacobian, "cofactor": cofactor, "systematic": systematic},
+            "w": w,
             "tie_rows": tie_rows, "removed_rows": removed_rows, "removed_ties": result.n_removed}
 
 

@@ -53,3 +53,33 @@ def test_group_test_is_the_drop_in_square_sum_when_the_group_may_be_biased():
     assert np.isclose(statistic, residual @ residual - rest @ rest, rtol=1e-10)
     hat = design @ cofactor @ design.T
     assert np.allclose(redundancy, 1.0 - np.diag(hat)[group])
+
+
+def test_group_test_with_errors_the_weights_leave_out_is_chi_square():
+    """With errors of the other observations that the weights leave out (y_o += B c, c ~ N(0, I)) and S their
+    covariance of the estimates (Q A_oᵀ B Bᵀ A_o Q), T = ṽᵀ(R + J S Jᵀ)⁻¹ṽ has mean q (χ²(q)) over 2000 draws;
+    without S it is larger."""
+    import importlib.util
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    rng = np.random.default_rng(5)
+    design = rng.normal(size=(30, 4))
+    shared = np.zeros((30, 2))
+    shared[6:] = 3.0 * rng.normal(size=(24, 2))
+    cofactor = np.linalg.inv(design.T @ design)
+    gain = cofactor @ design.T @ shared
+    systematic = gain @ gain.T
+    stated, plain = [], []
+    for _ in range(2000):
+        observed = rng.normal(size=30) + shared @ rng.normal(size=2)
+        residual = design @ (cofactor @ design.T @ observed) - observed
+        stated.append(module.group_test(residual[:6], design[:6], cofactor, systematic)[0])
+        plain.append(module.group_test(residual[:6], design[:6], cofactor)[0])
+    assert abs(np.mean(stated) / 6 - 1) < 0.05
+    assert np.mean(plain) / 6 > 1.2
