@@ -30,8 +30,10 @@ CORE_TESTS := tests/test_engine.py tests/test_lsq.py tests/test_nist.py tests/te
 test-xla-defaults: $(STAMP)
 	XLA_FLAGS= OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile $(CORE_TESTS)
 
+# The end-to-end runs and the repeats at scale (Dask clusters, concurrent and interrupted commands, Monte Carlo of
+# hundreds of realizations, whole workflows of the docs, the demo): minutes each; in .ci/run after `make test`.
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow --durations=15
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -m slow -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile --durations=15
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

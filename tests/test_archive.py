@@ -101,6 +101,7 @@ def read_sequence_names(project):
     return [im.name for im in read_sequence(project).images]
 
 
+@pytest.mark.slow
 def test_killed_worker_is_retried_and_the_job_completes(archive, tmp_path):
     project, single_dir, single = archive
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=NO_DASHBOARD)
@@ -221,6 +222,7 @@ def _first_images(remapped: Path, count: int, folder: Path) -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_two_worker_cluster_tracks_as_the_single_process_run(archive, tmp_path):
     """Pairs as tasks on 2 worker processes, with a land mask and the OSI SAF layout: the files and every tracked
     array of the single-process ``run_track``, bit for bit."""

@@ -80,6 +80,7 @@ def small():
     return scenario, options
 
 
+@pytest.mark.slow
 def test_schur_complement_equals_the_dense_engine(small):
     scenario, options = small
     data = noisy(scenario, np.random.default_rng(3))

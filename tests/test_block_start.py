@@ -41,7 +41,7 @@ def prudhoe_project(tmp_path_factory):
     return read_project(write_project(prudhoe_scenario(1), tmp_path_factory.mktemp("prudhoe") / "project"))
 
 
-@pytest.mark.parametrize("method", ["simultaneous", "sequential"])
+@pytest.mark.parametrize("method", [pytest.param("simultaneous", marks=pytest.mark.slow), "sequential"])
 def test_prudhoe_seed_1_runs_through_both_methods(prudhoe_project, method):
     scenario = prudhoe_scenario(1)
     analysis = adjust_block(prudhoe_project, method)

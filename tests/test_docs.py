@@ -74,7 +74,12 @@ def test_docs_have_snippets():
     assert len(_snippets()) >= 5
 
 
-@pytest.mark.parametrize("source", [s for _, s in _snippets()], ids=[i for i, _ in _snippets()])
+SLOW_SNIPPETS = {"docs/workflows/radar-blocks.md#1", "docs/workflows/satellite-sequences.md#1"}
+"""Whole workflows (a radar block, a sequence adjusted and remapped: 11-19 s each): run by `make test-slow`."""
+
+
+@pytest.mark.parametrize("source", [pytest.param(s, id=i, marks=[pytest.mark.slow] if i in SLOW_SNIPPETS else [])
+                                    for i, s in _snippets()])
 def test_snippet_runs(source, tmp_path):
     """Each ```python block runs on its own in a fresh interpreter (CPU), in an empty folder holding a copy of
     ``examples/`` (the files the commands use)."""

@@ -86,6 +86,7 @@ def _cache_entries(folder: Path) -> set[str]:
     return {p.name for p in folder.iterdir()} if folder.exists() else set()
 
 
+@pytest.mark.slow
 def test_a_second_rectify_run_reuses_the_first_runs_compilations(tmp_path):
     """Every compilation of the first run lands in the cache (none too short to keep); the second run adds no
     entry, i.e. it compiled nothing."""

@@ -246,6 +246,7 @@ def test_quality_flags_reject_cloud_covered_patches():
     assert (flat.status == LOW_CONTRAST).all() and GOOD not in flat.status
 
 
+@pytest.mark.slow
 def test_radar_strip_orthorectified_through_the_range_doppler_inverse_reproduces_the_ground():
     import jax.numpy as jnp
 

@@ -38,6 +38,7 @@ def test_an_image_without_enough_control_is_named():
         sequential_fit(images)
 
 
+@pytest.mark.slow
 def test_joint_sigma_matches_monte_carlo_and_the_1985_practice_is_overconfident():
     """Vmapped Monte Carlo of both methods with the same noise: known positions (500 m) and pointing (300 m).
 

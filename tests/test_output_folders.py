@@ -225,6 +225,7 @@ def reference(tmp_path_factory, seaice) -> dict[str, bytes]:
     return _tree(folder)
 
 
+@pytest.mark.slow
 def test_cli_rerun_different_run_and_two_runs_at_once(tmp_path, reference, seaice):
     """A folder of another run is refused without ``--overwrite``; two runs with it, started at once, leave the
     complete result of one of them (the other finds the folder locked, or runs after it) and nothing of the other
@@ -258,6 +259,7 @@ def _wait_for_staging(parent: Path, process, timeout: float = 600.0) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_cli_terminated_while_writing(tmp_path, reference, seaice):
     target = tmp_path / "out"
     process = seaice(*SMALL, "--out", str(target))

@@ -37,6 +37,7 @@ def test_simulate_then_block_writes_the_products(project, tmp_path, capsys):
     assert dx == pytest.approx(-1900.0 * 16, abs=2000.0)  # the simulated 1.9 km/day westward drift
 
 
+@pytest.mark.slow
 def test_simultaneous_block_writes_covariances_ellipses_and_quality(project, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["block", str(project / "project.toml"), "--out", str(out)]) == 0

@@ -150,6 +150,7 @@ def test_blunder_is_flagged(scene):
     assert (worst.group, worst.row) == ("control_range", 5)
 
 
+@pytest.mark.slow
 def test_ties_alone_have_no_datum_unless_priors(scene):
     orbits, _, _, tie_rows, tie_points = scene
     ties = _measured(orbits, tie_rows, tie_points, np.random.default_rng(3))

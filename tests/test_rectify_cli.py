@@ -86,6 +86,7 @@ def test_rectify_errors_name_the_file_and_write_nothing(tmp_path, capsys):
     assert "cannot determine" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_report_for_appendix_c_has_no_invented_statistics():
     truth = noaa_image("south")
     control, _, _ = simulate_control_points(truth, 6, np.random.default_rng(2), 500.0)
@@ -108,6 +109,7 @@ def test_rectify_with_the_image_writes_the_coastline_overlay(tmp_path, capsys):
     assert overlay.stat().st_size > 10_000 and out.exists()
 
 
+@pytest.mark.slow
 def test_rectify_auto_control_from_a_rough_orbit_recovers_the_pass(tmp_path, capsys):
     """`seaice rectify --image --auto-control` on a simulated image of Lancaster Sound (GSHHG land), from the node
     0.5° and the pass time 20 km off: the fitted parameters are the true ones to a fraction of a pixel."""

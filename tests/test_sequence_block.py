@@ -289,6 +289,7 @@ def test_bad_options_are_named():
         SequenceOptions(tie_gradient_factor=-0.1)
 
 
+@pytest.mark.slow
 def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):
     """``seaice simulate lancaster`` writes the truth (land cells do not move, pack cells do); ``seaice adjust``
     writes models whose covariance couples the images (per image: block diagonal); ``seaice remap --models`` adopts

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 _SHARDED = """
 import sys
@@ -52,6 +53,7 @@ np.savez(sys.argv[1], linear=linear, split=np.array(split), sharded=table([shard
 """
 
 
+@pytest.mark.slow
 def test_sharded_realizations_equal_unsharded_on_two_host_devices(tmp_path):
     """Two host devices need a subprocess (the device count is fixed when JAX starts). The XLA CPU runtime there
     gets 4 threads (NPROC): two devices run their batched LAPACK kernels at once, and on a pool of fewer threads

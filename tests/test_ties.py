@@ -130,6 +130,7 @@ def test_an_unrelated_image_gives_no_ties(sequence, current):
     assert tried[LOW_CORRELATION] + tried[AT_EDGE] >= 0.9 * (tried.sum() - tried[NO_DATA]), tried
 
 
+@pytest.mark.slow
 def test_search_window_follows_the_models_uncertainty(ties, sequence, current):
     models, covariances = current
     static = static_surface(sequence.scene)
