@@ -307,7 +307,7 @@ MATCH_OVERLAP_CORRELATION = 0.74
 """c (dimensionless): the correlation of two coastline matches' errors (per ground axis) is c times the share of
 pixels their windows have in common (:func:`window_overlap`). Maximum likelihood on the true errors of the points
 kept by :func:`coast_control` on the tuning seeds 61000-61079 (80 images of
-``experiments/coast_control_calibration.py``, 6659 points; jointly with the datum terms): 0.74 (0.69-0.79 at a
+``experiments/coast_control_calibration.py``, 6669 points; jointly with the datum terms): 0.74 (0.69-0.79 at a
 likelihood drop of 5-7). Seen first as the points' empirical correlation (seeds 61000-61039): +0.31 for windows of
 40 pixels 20 pixels apart (half their pixels shared), +0.12-0.17 a quarter shared, ~0.05 for neighbours sharing
 none."""
