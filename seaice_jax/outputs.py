@@ -66,8 +66,22 @@ def check_interrupted() -> None:
 
 
 def _raise_interrupted(signum, frame):
+    """Record the signal and raise :class:`Interrupted`, unless a module is being imported: then the next
+    :func:`check_interrupted` raises it (an exception raised inside the import of jaxlib's compiled extension left
+    it half made, and the interpreter crashed (SIGSEGV) on its way out: 1 Ctrl-C in 10 while JAX loaded, on a
+    loaded machine)."""
     _pending.append(signum)
-    raise Interrupted(signum)
+    if not _importing(frame):
+        raise Interrupted(signum)
+
+
+def _importing(frame) -> bool:
+    """Whether the Python ``frame`` or one of its callers runs Python's import machinery."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 @contextlib.contextmanager
