@@ -15,7 +15,7 @@ import xarray as xr
 
 from seaice_jax.cli import CACHE_VARIABLE, main
 from seaice_jax.errors import SeaiceError
-from seaice_jax.outputs import Interrupted, output_file, output_folder
+from seaice_jax.outputs import Interrupted, check_interrupted, interrupts_raise, output_file, output_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -380,3 +380,22 @@ def test_a_full_disk_while_writing_leaves_the_output_untouched(tmp_path, capsys)
         assert sorted(p.name for p in disk.iterdir()) == ["filler", "out"]  # no staging folder, no lock
     finally:
         subprocess.run(["umount", str(disk)], check=True)
+
+
+def test_a_ctrl_c_during_an_import_is_raised_after_it(tmp_path, monkeypatch):
+    """Raised inside an import (jaxlib's compiled extension, while JAX loads), the interrupt left the module half
+    made and the interpreter crashed on exit; now the import completes and the next check raises it."""
+    module = "import os, signal\nos.kill(os.getpid(), signal.SIGINT)\ncomplete = True\n"
+    (tmp_path / "slow_module.py").write_text(module)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(Interrupted, match="SIGINT"), interrupts_raise():
+        try:
+            import slow_module
+        except Interrupted:
+            pytest.fail("the interrupt was raised inside the import")
+        assert slow_module.complete
+        check_interrupted()
+    with pytest.raises(Interrupted, match="SIGINT"), interrupts_raise():  # outside an import: at once
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(5)
+    sys.modules.pop("slow_module", None)
