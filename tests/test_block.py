@@ -99,7 +99,8 @@ def test_schur_complement_equals_the_dense_engine(small):
     assert -1e-9 < schur.redundancy.min() and schur.redundancy.max() < 1.0 and controlled.mean() > 0.15
 
 
-@pytest.mark.parametrize("runs", [100, pytest.param(300, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("runs", [100, 300])
 def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small, runs):
     """``runs`` noise realizations: the empirical RMS about the noise-free solution equals the predicted σ (shared
     radar constants correlate the two coverages, so the drift covariance needs its cross terms).

@@ -115,6 +115,7 @@ def test_the_models_errors_are_what_the_matching_absorbs(ties, sequence, current
     assert np.sqrt(np.mean(np.square(np.concatenate(shifts)))) > 0.5
 
 
+@pytest.mark.slow
 def test_an_unrelated_image_gives_no_ties(sequence, current):
     """Image 1 replaced by unrelated texture: its matches fail the correlation (or later) tests, images 0 and 2
     still tie."""
