@@ -189,7 +189,8 @@ def test_a_control_point_one_kilometre_off_is_flagged_and_named(small):
 def test_without_control_or_priors_the_datum_defect_is_named(small):
     """Strip by strip, nothing ties the strips' errors together: one control point leaves the block free to turn
     about it. One error curve per flight (the INS drift and Schuler oscillation run on through the turns, while
-    the strips alternate direction) fixes the rotation; only the shift is left to the control. (Without control,
+    the strips alternate direction) fixes the rotation; only the shift is left to the control (the next test, in
+    make test-slow). (Without control,
     a flight's north/east offset is held only by the meridians' convergence across the block, ~2° at 75°N: not
     an exact defect, but its σ says the block is free.)"""
     scenario, options = small
@@ -203,7 +204,17 @@ def test_without_control_or_priors_the_datum_defect_is_named(small):
     with pytest.raises(RankDeficiencyError, match=r"datum defect: nothing fixes the block's rotation"):
         simultaneous_block(one, scenario.plane, len(scenario.kinds), free)
     simultaneous_block(scenario.coverages, scenario.plane, len(scenario.kinds), free)  # three stations fix it
-    flight = replace(free, navigation_scope="flight", solver="dense")
+
+
+@pytest.mark.slow
+def test_one_error_curve_per_flight_fixes_the_rotation_and_leaves_the_free_block_loose(small):
+    """The flight-scope half of the datum test above (four more block structures to compile): without control the
+    block solves but its σ says it is free; one control point fixes it; the Schur backend agrees."""
+    scenario, options = small
+    none = tuple(replace(c, control={}) for c in scenario.coverages)
+    one = tuple(replace(c, control={0: c.control[0]}) for c in scenario.coverages)
+    flight = replace(options, navigation_model="linear", navigation_scope="flight", offset_prior=None,
+                     shape_prior=None, turn_prior=None, solver="dense")
     loose = simultaneous_block(none, scenario.plane, len(scenario.kinds), flight)
     seen = np.isfinite(loose.positions[0]).all(axis=1)
     assert np.sqrt(np.diagonal(loose.covariances[0][seen], axis1=1, axis2=2)).min() > 100_000.0  # metres
