@@ -198,6 +198,7 @@ def test_tracking_starts_no_vector_and_no_floe_on_the_coastlines_land(tmp_path):
         land_of_grid(tmp_path / "missing.npy", grid)
 
 
+@pytest.mark.slow
 def test_sequence_ties_fall_back_to_the_coastlines_land(tmp_path):
     from seaice_jax.io.sequence import read_sequence
     from seaice_jax.simulate.satellite import simulate_sequence

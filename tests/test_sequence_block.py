@@ -319,6 +319,7 @@ def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):
         load_models(tmp_path / "other.npz", sequence)
 
 
+@pytest.mark.slow
 def test_warm_started_rounds_reach_the_final_problems_own_solution(truth, rng):
     """Every round of removal and variance estimation starts from the previous round's estimates: the result is
     the solution of the final problem (its ties removed, its σ rescaled) solved afresh from the original start (1-2
