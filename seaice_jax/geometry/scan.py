@@ -403,3 +403,14 @@ def satellite_orbit(name: str, altitude=None, earth_day=SIDEREAL_DAY, radius=MEA
         earth_day,
         radius,
     )
+
+
+def scan_unknowns(model: ScanModel) -> Float[Array, " 5"]:
+    """The five unknowns of ``model`` as a vector, in the order of :data:`SCAN_UNKNOWNS`."""
+    return jnp.stack([jnp.asarray(getattr(model, name), float) for name in SCAN_UNKNOWNS])
+
+
+def with_scan_unknowns(model: ScanModel, values) -> ScanModel:
+    """``model`` with its five unknowns replaced by ``values (5,)`` (order of :data:`SCAN_UNKNOWNS`)."""
+    return eqx.tree_at(lambda m: tuple(getattr(m, name) for name in SCAN_UNKNOWNS), model,
+                       replace=tuple(values[j] for j in range(len(SCAN_UNKNOWNS))))

@@ -36,15 +36,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax.adjust.engine.quality import noncentrality
-from seaice_jax.adjust.orbit.fit import FREE_PARAMETERS, OrbitFit, fit_scan_model, position_jacobian
+from seaice_jax.adjust.orbit.fit import OrbitFit, fit_scan_model, position_jacobian
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.geometry.scan import ScanModel
+from seaice_jax.geometry.scan import ScanModel, scan_unknowns, with_scan_unknowns
 from seaice_jax.sensors.control import ControlPoints
 
 LandTest = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -407,17 +406,6 @@ def coast_point_covariance(sigma, pixel, scan, latitude, longitude, window: floa
     return sigma[:, None] * correlation * sigma[None] + np.where(both, field, 0.0)
 
 
-def _with_unknowns(model: ScanModel, values) -> ScanModel:
-    """``model`` with its five unknowns (:data:`~seaice_jax.adjust.orbit.fit.FREE_PARAMETERS`) set to ``values``."""
-    return eqx.tree_at(lambda m: tuple(getattr(m, name) for name in FREE_PARAMETERS), model,
-                       replace=tuple(jnp.asarray(v, float) for v in values))
-
-
-def _unknowns(model: ScanModel) -> np.ndarray:
-    """``(5,)`` the model's unknowns in the order of :data:`~seaice_jax.adjust.orbit.fit.FREE_PARAMETERS`."""
-    return np.array([float(getattr(model, name)) for name in FREE_PARAMETERS])
-
-
 def _axis_weight(covariance: np.ndarray, weighted: np.ndarray) -> np.ndarray:
     """``(n, n)`` 1/m²: the inverse of ``covariance`` over the ``weighted`` points, zero for the others."""
     index = np.flatnonzero(weighted)
@@ -477,7 +465,7 @@ def correlated_fit(fit: OrbitFit, covariance, iterations: int = 2) -> OrbitFit:
     for _ in range(iterations):
         jacobian, residual = linearized(model)
         step = -np.linalg.solve(jacobian.T @ weight @ jacobian, jacobian.T @ weight @ residual)
-        model = _with_unknowns(model, _unknowns(model) + step)
+        model = with_scan_unknowns(model, scan_unknowns(model) + jnp.asarray(step))
     jacobian, residual = linearized(model)
     cofactor = np.linalg.inv(jacobian.T @ weight @ jacobian)
     dof = adjustment.degrees_of_freedom

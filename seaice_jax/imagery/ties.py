@@ -69,11 +69,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from seaice_jax._shapes import pad
-from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import great_circle_distance
 from seaice_jax.geometry.projections import MapGrid, TangentPlane
-from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel, scan_unknowns, with_scan_unknowns
 from seaice_jax.imagery.tracking import (
     AT_EDGE,
     FLAT_PEAK,

@@ -45,22 +45,11 @@ from jaxtyping import Array, Float, Int
 from seaice_jax.adjust.engine import ResidualBlock
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import wrap_angle
-from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel
+from seaice_jax.geometry.scan import SCAN_UNKNOWNS, ScanModel, scan_unknowns, with_scan_unknowns
 from seaice_jax.sensors.control import ControlPoints
 
 UNKNOWNS_PER_IMAGE = len(SCAN_UNKNOWNS)
 _NODE = SCAN_UNKNOWNS.index("ascending_node")
-
-
-def scan_unknowns(model: ScanModel) -> Float[Array, " 5"]:
-    """The five unknowns of ``model`` as a vector, in the order of :data:`SCAN_UNKNOWNS`."""
-    return jnp.stack([jnp.asarray(getattr(model, name), float) for name in SCAN_UNKNOWNS])
-
-
-def with_scan_unknowns(model: ScanModel, values) -> ScanModel:
-    """``model`` with its five unknowns replaced by ``values (5,)`` (order of :data:`SCAN_UNKNOWNS`)."""
-    return eqx.tree_at(lambda m: tuple(getattr(m, name) for name in SCAN_UNKNOWNS), model,
-                       replace=tuple(values[j] for j in range(UNKNOWNS_PER_IMAGE)))
 
 
 def global_index(image) -> Int[Array, "m 5"]:
