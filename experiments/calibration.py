@@ -51,7 +51,9 @@ so an interrupted run resumes and ``--table-only`` re-assembles the table from w
 experiments/results/calibration.md (``--out``).
 
 Run: ``.venv/bin/python experiments/calibration.py [--rows orbit,coast,tracking,deformation,block,block_strip,
-sequence] [--seeds N] [--quick] [--minutes M] [--table-only] [--sequence-ties DIR]``. A full run (the default
+sequence] [--seeds N] [--seed-list A-B,C,...] [--quick] [--minutes M] [--table-only] [--sequence-ties DIR]``
+(``--seed-list``: the seeds of every row named, in place of its fresh seeds, e.g. more fresh sequences never used
+before, or a pool of cached ones). A full run (the default
 seeds per row) took, on 2 cores shared with about six other people's work (load average 18-29 by ``uptime``, this
 script at nice 10): orbit 500 fits 5.5 min, coast 30 images 42 min, tracking 30 pairs 9 min, deformation 200 floe
 sets 15 s, radar blocks about 10 s each after a compilation of 3-8 min (100 per scope), sequences 6-28 min each (3
@@ -106,13 +108,24 @@ _failures: dict = {}
 
 # ---------------------------------------------------------------------------------------------------- statistics
 
-def seed_range(row: str, count: int):
-    """The first ``count`` fresh seeds of ``row``: its :data:`ROW_SEEDS` where it has a list (then at most those),
-    else ``FIRST_SEED + ROW_OFFSET[row]`` onwards."""
+def seed_range(row: str, count: int, given: list[int] | None = None):
+    """The first ``count`` fresh seeds of ``row``: of ``given`` where that is a list (``--seed-list``), else its
+    :data:`ROW_SEEDS` where it has a list (then at most those), else ``FIRST_SEED + ROW_OFFSET[row]`` onwards."""
+    if given is not None:
+        return given[:count]
     if row in ROW_SEEDS:
         return list(ROW_SEEDS[row][:count])
     first = FIRST_SEED + ROW_OFFSET[row]
     return range(first, first + count)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """The seeds of ``--seed-list``: comma-separated seeds and inclusive ranges ``A-B``, e.g. ``400-406,53200``."""
+    seeds = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        first, _, last = part.partition("-")
+        seeds += list(range(int(first), int(last or first) + 1))
+    return seeds
 
 
 def ratio(normalized, resamples: int = RESAMPLES, seed: int = 0) -> tuple[float, tuple[float, float], int]:
@@ -639,6 +652,9 @@ def main(argv=None):
                         help="comma-separated: " + ", ".join(ROWS))
     parser.add_argument("--seeds", type=int, default=None, help="seeds per row (default: per row, "
                         + ", ".join(f"{k} {v}" for k, v in DEFAULT_SEEDS.items()) + ")")
+    parser.add_argument("--seed-list", default=None,
+                        help="the seeds of every row named, in place of its fresh seeds: comma-separated seeds and "
+                        "inclusive ranges A-B (with --seeds: the first that many)")
     parser.add_argument("--quick", action="store_true", help=f"a smoke run: {QUICK_SEEDS} seeds per row")
     parser.add_argument("--minutes", type=float, default=None,
                         help="per row: stop computing new seeds after this many minutes (cached ones still count)")
@@ -653,6 +669,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     _cache_dir = args.cache
     _sequence_ties = args.sequence_ties
+    given = None if args.seed_list is None else parse_seeds(args.seed_list)
     names = [n.strip() for n in args.rows.split(",") if n.strip()]
     unknown = [n for n in names if n not in ROWS]
     if unknown:
@@ -661,19 +678,20 @@ def main(argv=None):
     load_start = os.getloadavg()
     for name in names:
         count = QUICK_SEEDS if args.quick else (args.seeds or DEFAULT_SEEDS[name])
-        if args.table_only and not args.seeds:
-            count = 1_000_000  # every cached seed from the row's first to the first missing
+        if (args.table_only or given is not None and not args.quick) and not args.seeds:
+            count = 1_000_000  # every cached seed from the row's first to the first missing; or the whole list
         begin = time.perf_counter()
         deadline = None if args.minutes is None else time.time() + 60 * args.minutes
         if args.table_only:
             deadline = time.time() - 1.0
-        entries += ROWS[name](list(seed_range(name, count)), args.quick, deadline)
+        entries += ROWS[name](list(seed_range(name, count, given)), args.quick, deadline)
         timing.append(f"{name} {time.perf_counter() - begin:.0f} s")
         print(f"{name}: done ({timing[-1]})", flush=True)
     load_end = os.getloadavg()
     lines = ["# Stated σ against Monte Carlo truth (experiments/calibration.py, issue 29)", "",
              f"`python experiments/calibration.py --rows {','.join(names)}"
              + (" --quick" if args.quick else "") + (f" --seeds {args.seeds}" if args.seeds else "")
+             + (f" --seed-list {args.seed_list}" if given is not None else "")
              + (" --table-only" if args.table_only else "") + "`; "
              f"fresh seeds from {FIRST_SEED} (row offsets {ROW_OFFSET}), used for tuning nowhere"
              + ("" if args.table_only else f"; this run's time (cached realizations cost nothing): "
