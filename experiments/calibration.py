@@ -29,6 +29,9 @@ own with ``--rows``):
   test (``sequence_block.group_test``, their σ given) as the global test, their w-tests; the whole adjustment's
   σ̂0 and global test (little to test: the ties' variance factors are estimated) and the ties' removals by the
   snooping (real mismatches among them, not a false-alarm rate) in the row's note.
+* **sequence_2** — the same sequences adjusted with the first 2 control points of every image (the control-point
+  sweep of ``experiments/sequence_block.py``: ties matched through predicted models, which its ties' cache also
+  holds): the same lines and tests for that adjustment (the control points' group test then has q = 16).
 * **tracking** — image pairs of ``experiments/tracking_calibration.py`` (its :func:`pair_errors`): stated: the
   per-vector σ from the correlation peak with the package's defaults (``CORRELATION_AREA``, ``SIGMA_FLOOR``), for
   the vectors the package leaves good (not flagged ``MIXED_MOTION``); the flag's rates among the vectors of one
@@ -82,9 +85,10 @@ CACHE = RESULTS / ".cache"
 FIRST_SEED = 50_000
 ROW_OFFSET = {"orbit": 0, "coast": 1000, "block": 2000, "block_strip": 2500, "sequence": 3000, "tracking": 4000,
               "deformation": 5000}
-DEFAULT_SEEDS = {"orbit": 500, "coast": 60, "block": 100, "block_strip": 100, "sequence": 32, "tracking": 30,
-                 "deformation": 200}
-ROW_SEEDS = {"sequence": (*range(400, 407), *range(410, 416), *range(420, 427), *range(430, 436), *range(440, 446))}
+DEFAULT_SEEDS = {"orbit": 500, "coast": 60, "block": 100, "block_strip": 100, "sequence": 32, "sequence_2": 32,
+                 "tracking": 30, "deformation": 200}
+_FRESH_SEQUENCES = (*range(400, 407), *range(410, 416), *range(420, 427), *range(430, 436), *range(440, 446))
+ROW_SEEDS = {"sequence": _FRESH_SEQUENCES, "sequence_2": _FRESH_SEQUENCES}
 """Rows whose fresh seeds are a list: the sequences are those of ``experiments/sequence_block.py``'s fresh-seed run
 (``experiments/results/sequence_block.md``; seeds from 400 on, none tuned on), whose matched ties are kept
 (``--sequence-ties``)."""
@@ -423,6 +427,7 @@ SEQUENCE_IMAGES = 4
 SEQUENCE_SIZE = 256
 SEQUENCE_METHOD = "simultaneous, 12 control points"
 SEQUENCE_PER_IMAGE = "per image, 12 control points"
+SEQUENCE_TWO = "simultaneous, 2 control points"
 _sequence_ties: Path | None = None
 """``--sequence-ties``: the folder of ``experiments/sequence_block.py``'s matched ties per seed (``ties_<seed>.pkl``),
 read where present and written where not (``None``: match every seed anew, about 150 s a sequence)."""
@@ -442,6 +447,18 @@ def sequence_realization(seed: int) -> dict:
                       drift_labels=keep)
     result = {label: {k: np.asarray(v) for k, v in out[label].items()} for label in keep if label in out}
     return {**result, "quality": out["quality"], "ties": int(out["ties"][0])}
+
+
+def sequence_two_realization(seed: int) -> dict:
+    """One sequence as :func:`sequence_realization`, adjusted with the first 2 control points of every image (the
+    sweep's ties, matched through predicted models): the drift and model errors and their stated σ of that
+    adjustment, ``quality`` its own statistics."""
+    from sequence_block import realization
+
+    out = realization(seed, SEQUENCE_IMAGES, False, SEQUENCE_SIZE, counts=(2,), planting=False, cache=_sequence_ties,
+                      drift_labels=(SEQUENCE_TWO,))
+    return {SEQUENCE_TWO: {k: np.asarray(v) for k, v in out[SEQUENCE_TWO].items()}, "quality": out["quality_sweep"][2],
+            "ties": int(out["ties"][1])}
 
 
 def sequence_tests(runs) -> dict:
@@ -488,17 +505,18 @@ def sequence_note(runs) -> str:
             f"adjustment {tie_alarms}/{tie_testable} testable tie observations flagged (0 by construction)")
 
 
-def row_sequence(seeds, quick: bool = False, deadline=None) -> list[dict]:
-    runs = realizations("sequence", seeds, sequence_realization, deadline)
+def sequence_entries(runs, methods, tested: str) -> list[dict]:
+    """The drift and model-error lines of ``methods`` (labels of the realizations ``runs``), with the tests of the
+    adjustment ``tested``."""
     if not runs:
         return []
     done = [r["seed"] for r in runs]
     shape = f"{SEQUENCE_IMAGES} images of {SEQUENCE_SIZE} x {SEQUENCE_SIZE}"
     out = []
-    for method in (SEQUENCE_METHOD, SEQUENCE_PER_IMAGE):
+    for method in methods:
         if method not in runs[0]:
             continue
-        tests = dict(**sequence_tests(runs), note=sequence_note(runs)) if method == SEQUENCE_METHOD else {}
+        tests = dict(**sequence_tests(runs), note=sequence_note(runs)) if method == tested else {}
         out.append(entry(f"sequence ({method}): drift due to the models",
                          f"`displacement_sigma` (x, y) of the joint covariance, {shape}, every pack-ice cell", done,
                          [r[method]["drift"] / r[method]["drift_sigma"] for r in runs], **tests))
@@ -506,6 +524,16 @@ def row_sequence(seeds, quick: bool = False, deadline=None) -> list[dict]:
                          "image", done,
                          [r[method]["model_north_east"] / r[method]["model_sigma_north_east"] for r in runs]))
     return out
+
+
+def row_sequence(seeds, quick: bool = False, deadline=None) -> list[dict]:
+    runs = realizations("sequence", seeds, sequence_realization, deadline)
+    return sequence_entries(runs, (SEQUENCE_METHOD, SEQUENCE_PER_IMAGE), SEQUENCE_METHOD)
+
+
+def row_sequence_2(seeds, quick: bool = False, deadline=None) -> list[dict]:
+    runs = realizations("sequence_2", seeds, sequence_two_realization, deadline)
+    return sequence_entries(runs, (SEQUENCE_TWO,), SEQUENCE_TWO)
 
 
 # ---------------------------------------------------------------------------------------------------- tracking
@@ -593,7 +621,8 @@ def row_block_strip(seeds, quick: bool = False, deadline=None) -> list[dict]:
 
 
 ROWS = {"orbit": row_orbit, "coast": row_coast, "block": row_block, "block_strip": row_block_strip,
-        "sequence": row_sequence, "tracking": row_tracking, "deformation": row_deformation}
+        "sequence": row_sequence, "sequence_2": row_sequence_2, "tracking": row_tracking,
+        "deformation": row_deformation}
 
 
 # ------------------------------------------------------------------------------------------------------- table

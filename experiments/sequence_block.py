@@ -340,8 +340,9 @@ def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, ca
     distances; ``model_north_east``, ``model_sigma_north_east`` per coordinate, m) and the exact drift errors
     and their stated σ (``drift``, ``drift_sigma`` ``(n, 2)`` m; only for the labels in ``drift_labels``, default
     all), the ties' stochastic-model measurements, and ``quality``, the 12-point simultaneous adjustment's own
-    statistics (:func:`adjustment_quality`). ``counts``: the control-point sweep (``()``: none; the summary needs
-    2); ``cache``: the folder of the matched ties (:func:`matched_ties`)."""
+    statistics (:func:`adjustment_quality`; ``quality_sweep``: per control count > 0 of the sweep, the same of its
+    adjustment). ``counts``: the control-point sweep (``()``: none; the summary needs 2); ``cache``: the folder of
+    the matched ties (:func:`matched_ties`)."""
     rng = np.random.default_rng(20_000 + seed)
     sequence = simulate_sequence(seed, n_images=images, size=size, pointing_sigma=POINTING)
     scene = sequence.scene
@@ -400,7 +401,8 @@ def realization(seed, images, tracked, size, counts=(4, 2, 0), planting=True, ca
            "field": field,
            "factors": [block12.variance_factors, {} if two is None else two.variance_factors],
            "group_factors": [group_factors(block12), {} if two is None else group_factors(two)],
-           "planted": len(planted), "quality": adjustment_quality(block12)}
+           "planted": len(planted), "quality": adjustment_quality(block12),
+           "quality_sweep": {count: adjustment_quality(result) for count, result in sweep.items() if count > 0}}
     if planted_run is not None:
         out.update({"planted_found": len(planted & set(planted_run.removed_ties)),
                     "false_removed": len(set(planted_run.removed_ties) - planted - set(block12.removed_ties)),

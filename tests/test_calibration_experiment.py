@@ -83,3 +83,21 @@ def test_group_test_with_errors_the_weights_leave_out_is_chi_square():
         plain.append(module.group_test(residual[:6], design[:6], cofactor)[0])
     assert abs(np.mean(stated) / 6 - 1) < 0.05
     assert np.mean(plain) / 6 > 1.2
+
+
+def test_seed_list_takes_the_place_of_a_rows_fresh_seeds():
+    """--seed-list: comma-separated seeds and inclusive ranges, in place of the row's own fresh seeds (the first
+    --seeds of them); without it a row keeps its own."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("calibration", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    given = module.parse_seeds("400-402, 53200,53205-53206")
+    assert given == [400, 401, 402, 53200, 53205, 53206]
+    assert module.seed_range("sequence", 4, given) == [400, 401, 402, 53200]
+    assert module.seed_range("sequence", 3) == [400, 401, 402]
+    assert module.seed_range("sequence_2", 2) == [400, 401]
+    assert list(module.seed_range("orbit", 2)) == [50000, 50001]
