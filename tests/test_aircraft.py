@@ -6,6 +6,7 @@ from seaice_jax.sensors.strips import strip_ground_points
 from seaice_jax.simulate.aircraft import (
     ErrorModel,
     FlightPlan,
+    aidjex_scenario,
     image_points,
     simulate_flight,
 )
@@ -194,3 +195,18 @@ def test_prudhoe_scenario_single_control_point_removes_most_of_the_error():
     rms_none = np.sqrt(np.nanmean((none.point_positions(m, truth.shape[0]) - truth) ** 2))
     rms_one = np.sqrt(np.nanmean((one.point_positions(m, truth.shape[0]) - truth) ** 2))
     assert rms_none > 1000.0 and rms_one < 0.3 * rms_none
+
+
+def test_no_simulated_mark_lies_inside_the_nadir_return():
+    """Fresh seed 52511 of the AIDJEX block (issue 29) drew a near-edge point's mark 4 m of slant range inside the
+    flying height, which the block adjustment refuses: the film shows nothing there, so the simulator reads no
+    mark inside the nadir return's trace (``FlightPlan.nadir_trace``)."""
+    scenario = aidjex_scenario(52511, plan=FlightPlan(strips=10), features=600)
+    plan = scenario.plan
+    for coverage, truth in zip(scenario.coverages, scenario.truth, strict=True):
+        m = coverage.measurements
+        sweep_delay = np.array([s.sweep_delay for s in truth.strips])[m.strip]
+        range_scale = np.array([s.range_scale for s in truth.strips])[m.strip]
+        beyond = m.y - (plan.altitude / range_scale - sweep_delay)  # mm of film beyond the true nadir line
+        assert beyond.min() >= plan.nadir_trace
+        assert m.x.size > 700  # only the rare near-edge mark is left out
