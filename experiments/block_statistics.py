@@ -178,7 +178,8 @@ def _groups(result):
 
 def block_statistics(seed, options):
     """One blunder-free block: σ̂0, dof, global-test acceptance, w-test alarms by group (all rows and testable
-    ones) and normalized errors."""
+    ones), the sum of the testable w² by group (its mean is 1 under the null: a rate of alarms resolves only the
+    tails, a few per group) and normalized errors."""
     sim = scenario(seed)
     n = sim.kinds.size
     result = simultaneous_block(sim.coverages, sim.plane, n, options)
@@ -186,10 +187,11 @@ def block_statistics(seed, options):
         raise SystemExit("the per-prior counts assume every unknown has a prior (every prior option set)")
     _, _, accepted = global_test(result.sigma0**2, result.degrees_of_freedom, GLOBAL_ALPHA)
     limit = float(critical_value(W_ALPHA))
-    alarms = {}
+    alarms, w_squares = {}, {}
     for group, (w, r) in _groups(result).items():
         testable = r > TESTABLE
         alarms[group] = (int(np.sum(np.abs(w[testable]) > limit)), int(testable.sum()))
+        w_squares[group] = float(np.sum(w[testable] ** 2))
     # the count issue 12 made: image alarms over every image row (testable or not)
     every_row = (np.abs(result.w) > limit).sum(axis=0), result.w.shape[0]
     stations = np.nonzero(sim.kinds == "station")[0]
@@ -208,7 +210,7 @@ def block_statistics(seed, options):
         errors["drift"].append(drift - (sim.truth[k + 1].positions - sim.truth[k].positions))
         covariances["drift"].append(covariance)
     return dict(seed=seed, sigma0=result.sigma0, dof=result.degrees_of_freedom, accepted=bool(accepted),
-                converged=result.converged, alarms=alarms, every_row=every_row,
+                converged=result.converged, alarms=alarms, w_squares=w_squares, every_row=every_row,
                 errors={k: np.concatenate(v) for k, v in errors.items()},
                 covariances={k: np.concatenate(v) for k, v in covariances.items()}, variates=variates)
 
@@ -380,6 +382,11 @@ def summarize(rows):
     groups = list(dict.fromkeys(g for r in rows for g in r["alarms"]))
     alarms = {g: tuple(int(sum(r["alarms"].get(g, (0, 0))[k] for r in rows)) for k in range(2)) for g in groups}
     alarm_interval = {g: block_interval(*np.array([r["alarms"].get(g, (0, 0)) for r in rows]).T) for g in groups}
+    # mean w² per group over the blocks that recorded it (older pickles did not)
+    recorded = [r for r in rows if "w_squares" in r]
+    mean_w2 = {g: sum(r["w_squares"].get(g, 0.0) for r in recorded)
+               / max(sum(r["alarms"].get(g, (0, 0))[1] for r in recorded), 1) if recorded else np.nan
+               for g in groups}
     every_row = (np.sum([r["every_row"][0] for r in rows], axis=0), sum(r["every_row"][1] for r in rows))
     ratio, interval, conditioned, conditioned_interval = {}, {}, {}, {}
     for k in rows[0]["errors"]:
@@ -390,6 +397,7 @@ def summarize(rows):
                 sigma0_min=sigma0.min(), sigma0_max=sigma0.max(), dof=np.mean([r["dof"] for r in rows]),
                 converged=int(sum(r["converged"] for r in rows)), rejected=rejected,
                 rejected_interval=wilson(rejected, len(rows)), alarms=alarms, alarm_interval=alarm_interval,
+                mean_w2=mean_w2,
                 every_row=every_row, ratio=ratio,
                 interval=interval, conditioned=conditioned, conditioned_interval=conditioned_interval,
                 fixes={k: np.sqrt(np.mean([r["variates"][k] for r in rows], axis=0)) for k in ratio},
@@ -455,7 +463,7 @@ def report(summaries, blunders, budget, navigation, options, args, elapsed, load
                 ", ".join(f"{s['fixes'][key][i]:.2f}" for i in range(2)) for s in values], "1 (chance)")
         lines += ["", "### w-test alarms per testable observation (redundancy > 1e-12), α = 0.001", "",
                   "| group | " + " | ".join(f"scope {s}: alarms / testable = rate (÷ α; 95 % interval ÷ α: "
-                                              "binomial; blocks resampled)"
+                                              "binomial; blocks resampled); mean w² of the testable (1)"
                                               for s in summaries) + " | target |",
                   "|---|" + "---|" * len(summaries) + "---|"]
         groups = list(dict.fromkeys(g for s in values for g in s["alarms"]))
@@ -471,7 +479,7 @@ def report(summaries, blunders, budget, navigation, options, args, elapsed, load
                 # no alarm at all: resampled blocks have none either, no interval (the binomial one says more)
                 blocks = f"{block_low / W_ALPHA:.2f}-{block_high / W_ALPHA:.2f}" if a else "–"
                 cells.append(f"{a} / {n} = {a / n:.5f} ({a / n / W_ALPHA:.2f}; {low / W_ALPHA:.2f}-"
-                             f"{high / W_ALPHA:.2f}; {blocks})")
+                             f"{high / W_ALPHA:.2f}; {blocks}); mean w² {s.get('mean_w2', {}).get(group, np.nan):.3f}")
             row(group, cells, "≤ 1.5 α")
         row("image x, y over every image row (the count before issue 29)", [
             ", ".join(f"{s['every_row'][0][k] / s['every_row'][1]:.5f}" for k in range(2)) for s in values],
