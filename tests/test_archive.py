@@ -269,6 +269,7 @@ def test_bad_track_input_is_refused_before_the_cluster_starts(archive, tmp_path)
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_the_overview_of_a_long_archive_shows_and_reads_twelve_images(tmp_path):
     """``remapped.png`` of a 30-image sequence: 12 images evenly spaced, the first and the last among them, each
     read once (an archive's overview does not hold every image's pixels)."""

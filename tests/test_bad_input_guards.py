@@ -340,6 +340,7 @@ def test_the_block_guard_counts_the_layouts_unknowns(radar_project, options):
     assert block_unknowns(project.coverages, block) == len(layout.names)
 
 
+@pytest.mark.slow
 def test_the_median_test_of_many_vectors_keeps_its_memory_linear_and_its_answer():
     """Beyond 2048 good vectors the neighbours come from blocks of rows (the g x g distance matrix of 97 000 vectors
     took 20 GB): the same flags as the test written out on the whole matrix."""

@@ -65,6 +65,7 @@ def test_known_places_land_where_the_land_mask_says(name, latitude, longitude, l
     assert box.contains(latitude, longitude) == land, name
 
 
+@pytest.mark.slow
 def test_land_mask_agrees_with_roaring_landmask():
     roaring_landmask = importlib.import_module("roaring_landmask")  # a compiled module without type stubs
 

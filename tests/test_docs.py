@@ -74,8 +74,10 @@ def test_docs_have_snippets():
     assert len(_snippets()) >= 5
 
 
-SLOW_SNIPPETS = {"docs/workflows/radar-blocks.md#1", "docs/workflows/satellite-sequences.md#1"}
-"""Whole workflows (a radar block, a sequence adjusted and remapped: 11-19 s each): run by `make test-slow`."""
+SLOW_SNIPPETS = {"docs/workflows/radar-blocks.md#1", "docs/workflows/satellite-sequences.md#1",
+                 "docs/workflows/sentinel1.md#1"}
+"""Whole workflows (a radar block, a sequence adjusted and remapped, a Sentinel-1 product's grid reproduced and its
+image remapped: 5-19 s each): run by `make test-slow`."""
 
 
 @pytest.mark.parametrize("source", [pytest.param(s, id=i, marks=[pytest.mark.slow] if i in SLOW_SNIPPETS else [])

@@ -129,6 +129,7 @@ def test_bad_projects_name_file_and_line_and_write_nothing(project, tmp_path, ca
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_block_that_does_not_converge_exits_1_and_writes_nothing(project, tmp_path, capsys):
     """A strip's range scale given as 1 m/mm instead of 250 (a valid number: its slant ranges 250 times too short):
     the Gauss-Newton iterations do not converge within the block's limit, and the command says so and exits 1 (a

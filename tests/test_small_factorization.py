@@ -86,7 +86,8 @@ def test_jacobi_factors_agree_with_lapacks(rng, kind):
 NIST_OPTIONS = EngineOptions("dense", max_steps=2000, strategy="trust-region", factorization="jacobi")
 
 
-@pytest.mark.parametrize("name", ["MGH09", "Thurber", "BoxBOD", "Eckerle4"])
+@pytest.mark.parametrize("name", ["MGH09", "Thurber", *(pytest.param(n, marks=pytest.mark.slow)
+                                                          for n in ("BoxBOD", "Eckerle4"))])
 def test_the_jacobi_factorization_reaches_nists_certified_values(name):
     """Hard problems of NIST's StRD suite (both certified starts, the trust region): the certified estimates to 6
     digits and standard deviations to 4 (the criteria of tests/test_nist.py, where the padded 9-unknown problems
