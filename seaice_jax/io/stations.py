@@ -55,8 +55,8 @@ MEASUREMENT_COLUMNS = ("id", "pixel", "scan", "latitude_deg", "longitude_deg", "
 :func:`read_measurements`."""
 
 _ALIASES = {"lat": "latitude", "lon": "longitude", "sigma_km": "sigma_m"}
-"""Older column names (after :func:`~seaice_jax.files.bare_column`) -> the dialect's: the 1985 example's
-``lat``/``lon`` and ``seaice rectify``'s former ``sigma_km``."""
+"""Older column names (after :func:`~seaice_jax.files.bare_column`) -> the dialect's: older files' ``lat``/``lon``
+and ``seaice rectify``'s former ``sigma_km``."""
 
 
 def _field(line: str, start: int, end: int) -> str:
@@ -140,9 +140,8 @@ def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None =
 
     This is what ``seaice simulate lancaster`` writes beside each image
     (:func:`~seaice_jax.io.sequence.write_sequence`) and what a sequence project's ``control`` file is, so a
-    simulated image's control points go straight to ``seaice rectify``. Older files still read: ``lat``/``lon``
-    (as in ``examples/figure_3_3.csv``, the stations of the 1985 printout), ``latitude``/``longitude``,
-    ``lat_deg``/``lon_deg`` for the position, and ``sigma_km`` (kilometres) for the σ. The AGRID catalogue is a
+    simulated image's control points go straight to ``seaice rectify``. Older files still read: ``lat``/``lon``,
+    ``latitude``/``longitude``, ``lat_deg``/``lon_deg`` for the position, and ``sigma_km`` (kilometres) for the σ. The AGRID catalogue is a
     different file (:func:`read_agrid`).
 
     Raises:
@@ -200,7 +199,7 @@ def _read_measurements(path, by_number: dict, catalogue) -> list[Measurement]:
 def _measurement(row: dict, columns: dict, point: str, where: str, by_number: dict, line: int) -> Measurement:
     """One measurement row: its own position (and name) or the catalogue station's; latitude within ±90°; σ > 0."""
     def number(name):
-        return finite_number(row[name].strip(), bare_column(columns[name]), where)
+        return finite_number(row[name].strip(), columns[name].strip(), where)
 
     if row.get("latitude", "").strip() != "":
         latitude, longitude = number("latitude"), number("longitude")
