@@ -8,7 +8,7 @@ import pytest
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.imagery.coast_control import MatchLevel, coast_control, predicted_land
+from seaice_jax.imagery.coast_control import DEFAULT_LEVELS, MatchLevel, coast_control, match_coast, predicted_land
 from seaice_jax.io.coastline import coastline, coastline_of_grid
 from seaice_jax.io.sequence import MODEL_KEYS, read_sequence
 from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
@@ -164,3 +164,30 @@ def test_sequence_coastline_control_errors_name_the_file_and_image(tmp_path):
                                    float(truth.orbit.altitude))
     with pytest.raises(SeaiceError, match=r"sequence.toml: image 'A': control = 'coastline': automatic control"):
         rectify_images(read_sequence(path))
+
+
+def _disc(size, centre, radius, island):
+    """``(size, size)`` float 0/1: land sampled at the pixel centres (column, row = pixel − 1, scan − 1) inside
+    (``island``) or outside a circle of ``radius`` pixels around ``centre`` (column, row)."""
+    row, column = np.mgrid[0:size, 0:size].astype(float)
+    inside = np.hypot(column - centre[0], row - centre[1]) < radius
+    return (inside if island else ~inside).astype(float)
+
+
+@pytest.mark.parametrize("island", [True, False])
+def test_last_level_finds_a_curved_coast_without_landward_bias(island):
+    """An island's and a lake's coast displaced by a known sub-pixel shift: the last level's matches find the shift
+    with no bias along the coast's normal (issue 29: the banded profile put them 0.3-0.4 pixel landward here, and
+    kept fewer than half the matches)."""
+    size, centre, radius = 200, np.array([100.3, 99.6]), 60.0
+    shift = np.array([0.3, -0.2])  # pixel, scan: where the image shows the predicted coast
+    prediction = _disc(size, centre, radius, island)
+    land = _disc(size, centre + shift, radius, island)
+    image = 0.3 * land + 0.9 * (1.0 - land) + np.random.default_rng(5).normal(0.0, 0.05, land.shape)
+    matches = match_coast(image, prediction, DEFAULT_LEVELS[-1])
+    error = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan], 1) - shift
+    outward = np.stack([matches.predicted_pixel - 1.0 - centre[0], matches.predicted_scan - 1.0 - centre[1]], 1)
+    landward = np.sum(error * outward, axis=1) / np.hypot(*outward.T) * (-1.0 if island else 1.0)  # pixels
+    assert abs(float(np.mean(landward))) < 0.05
+    assert float(np.sqrt(np.mean(landward**2))) < 0.15
+    assert matches.pixel.size >= 20

@@ -13,7 +13,9 @@ of a coarse-to-fine loop:
    (:func:`profile_fit`: land, sea bands 0-2, 2-5, 5-10, 10-20 pixels offshore, farther sea; both smoothed by a
    Gaussian), which needs no assumption on the sign of the land/sea contrast and takes a band of fast ice along
    the coast in its stride; the best R² wins (the first level searches the whole image's shift first), refined to
-   a sub-pixel shift by a quadratic fitted to the 3 x 3 values around the peak;
+   a sub-pixel shift by a quadratic fitted to the 3 x 3 values around the peak. The last level, whose matches
+   are the final control points, fits land against everything else (:data:`COAST_STEP`): the sea bands bias the
+   position landward (:data:`COAST_BANDS`);
 3. proposes a control point per match: the image position where the window was found, the ground position the
    current model gives the window's centre, and σ from the peak: ``C = (1 − ρ²) / (ρ n) (−H_ρ)⁻¹`` pixel² (ρ = √R²
    at the peak, H_ρ its Hessian per pixel², n the independent pixels of the window), the larger axis of C taken as
@@ -22,11 +24,12 @@ of a coarse-to-fine loop:
 4. fits the scan model (:func:`~seaice_jax.adjust.orbit.fit.fit_scan_model`) and removes, one at a time, the point
    with the largest |w| beyond the critical value (Baarda's data snooping, :mod:`seaice_jax.adjust.engine.quality`),
    refitting each time. The points' errors are not independent (issue 29): matches whose windows overlap share
-   pixels (:data:`MATCH_OVERLAP_CORRELATION`), and the coastline database and the imaged coast disagree by an error
-   field all of one image's points share (a shift, :data:`COAST_DATUM_SIGMA`, and gradients,
-   :data:`COAST_DATUM_GRADIENT_SIGMA`), so every fit is solved with these in the points' covariance
-   (:func:`coast_point_covariance`, :func:`correlated_fit`): the model's covariance, σ̂0 and the w-tests account
-   for them; the global test also for the errors' heavy tails (:data:`MATCH_ERROR_KURTOSIS`).
+   pixels (:data:`MATCH_OVERLAP_CORRELATION`), and the coastline database and the imaged coast may disagree by an
+   error field all of one image's points share (a shift, :data:`COAST_DATUM_SIGMA`, and gradients,
+   :data:`COAST_DATUM_GRADIENT_SIGMA`; zero on simulated images, whose coast is the database's), so every fit is
+   solved with these in the points' covariance (:func:`coast_point_covariance`, :func:`correlated_fit`): the
+   model's covariance, σ̂0 and the w-tests account for them; the global test also for the errors' heavy tails
+   (:data:`MATCH_ERROR_KURTOSIS`).
 
 The next level starts from the fitted model with a smaller search, smaller windows and less smoothing.
 """
@@ -50,6 +53,24 @@ LandTest = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """``land(latitude_deg, longitude_deg) -> bool array`` of the same shape: True on land."""
 
 
+COAST_BANDS = (0.0, -2.0, -5.0, -10.0, -20.0)
+"""Signed distances (pixels, > 0 on land) bounding the profile's bins: land (d > 0), then sea bands 0-2, 2-5, 5-10
+and 10-20 pixels offshore; farther sea is the baseline. The sea bands model a band of fast ice along the coast,
+which the whole image's search and the coarse levels need to lock on; but their position is biased landward: a
+free bin next to the coast on the sea side can take the land's brightness, so a seaward displacement of the image
+costs the fit little and a landward one much, the R² peak is lopsided and its quadratic vertex lies landward of the
+coast (0.13-0.16 pixel when the image is the prediction itself, 0.17 on simulated images, issue 29). The last
+level therefore matches with :data:`COAST_STEP`."""
+
+COAST_STEP = (0.0,)
+"""The profile of land against everything else (one bin, d > 0; sea, fast ice and pack are the baseline): no bin
+can stand in for the coast, so the peak is symmetric about it and its position unbiased (0.00 ± 0.002 pixel when the
+image is the prediction, +0.04 ± 0.01 on simulated images with their fast ice and pack, against +0.17 with
+:data:`COAST_BANDS`; with the true model's prediction, tuning seeds 61000-61019), and tighter (RMS 0.45 pixel, not
+0.53). Too little model for the whole image's search (on seeds 61000 and 61001 it found shifts 30-40 pixels off)
+and fewer matches at the first level, so it is for the last level, which starts within a pixel or two."""
+
+
 @dataclass(frozen=True)
 class MatchLevel:
     """One level of the coarse-to-fine loop (pixels of the image).
@@ -58,24 +79,30 @@ class MatchLevel:
         search: ± pixels searched around the expected position (at the first level, around the whole image's
             shift). window: side of the square templates. step: spacing of the template centres.
         smoothing: σ of the Gaussian applied to image and prediction.
+        bands: signed distances (pixels, > 0 on land) bounding the brightness profile's bins
+            (:data:`COAST_BANDS`, or :data:`COAST_STEP` for an unbiased position).
     """
 
     search: int
     window: int
     step: int
     smoothing: float
+    bands: tuple[float, ...] = COAST_BANDS
 
 
-MATCH_SIGMA_SCALE = 1.7
+MATCH_SIGMA_SCALE = 1.5
 """Factor on the σ from the correlation peak, calibrated by Monte Carlo so that the final fits' σ̂0 is 1
-(``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed: pooled σ̂0 1.30 at factor 1
-and 0.98 at 1.7 on the tuning seeds 0-29, 1.01 at 1.7 on the fresh seeds 1000-1029). The peak's σ alone is 1.35
-times too small for the matches the w-test keeps at factor 1; a larger σ lets the w-test keep more moderately wrong
-matches too, so σ̂0 = 1 needs more than 1.35 (check-point RMS 0.19 pixel at factor 1, 0.24 at 1.7)."""
+(``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed). First 1.7 (pooled σ̂0 1.30
+at factor 1 and 0.98 at 1.7 on the tuning seeds 0-29, 1.01 at 1.7 on the fresh seeds 1000-1029); since the last
+level matches with :data:`COAST_STEP` (issue 29) the matches are tighter (true error RMS 581 m, not 727 m) and 1.7
+gave σ̂0 0.88: 1.5 gives a pooled σ̂0 of 0.97 with ``CoastErrors(0.80, 0, 0)`` and 0.99 with the calibrated
+:class:`CoastErrors` on the tuning seeds 61000-61079 (1.45: 1.02), the kept points' true error over their stated
+σ 0.93 (RMS per coordinate). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0 does not
+fall as 1/factor."""
 
-DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7))
+DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7, COAST_STEP))
 """Coarse to fine: after the first level's global shift (``search`` of :func:`coast_control`) the windows look only a
-few pixels around it."""
+few pixels around it; the last level's control points are matched with the unbiased :data:`COAST_STEP`."""
 
 
 @dataclass(frozen=True)
@@ -150,11 +177,6 @@ def _quadratic_peak(surface: np.ndarray, row: int, column: int):
     return offset, float(a + 0.5 * np.dot([gx, gy], offset)), hessian
 
 
-COAST_BANDS = (0.0, -2.0, -5.0, -10.0, -20.0)
-"""Signed distances (pixels, > 0 on land) bounding the profile's bins: land (d > 0), then sea bands 0-2, 2-5, 5-10
-and 10-20 pixels offshore; farther sea is the baseline."""
-
-
 def signed_distance(land: np.ndarray) -> np.ndarray:
     """``(rows, columns)`` pixels from each cell of the boolean raster ``land`` to the nearest cell of the other kind
     (exact Euclidean distance transform) less half a cell, positive on land: the zero line runs midway between a
@@ -165,12 +187,12 @@ def signed_distance(land: np.ndarray) -> np.ndarray:
     return np.where(land > 0, inland - 0.5, 0.5 - offshore)
 
 
-def coast_bands(prediction: np.ndarray, smoothing: float) -> np.ndarray:
-    """``(k, rows, columns)`` float32: indicators of the profile bins (:data:`COAST_BANDS`) of the prediction's
-    signed distance to its coast (pixels, exact Euclidean distance transform), each smoothed by a Gaussian of σ
-    ``smoothing`` pixels."""
+def coast_bands(prediction: np.ndarray, smoothing: float, bands: tuple[float, ...] = COAST_BANDS) -> np.ndarray:
+    """``(k, rows, columns)`` float32: indicators of the profile bins (``bands``: signed distances bounding them,
+    pixels, > 0 on land; :data:`COAST_BANDS`) of the prediction's signed distance to its coast (pixels, exact
+    Euclidean distance transform), each smoothed by a Gaussian of σ ``smoothing`` pixels."""
     distance = signed_distance(prediction > 0.5)
-    edges = (np.inf, *COAST_BANDS)
+    edges = (np.inf, *bands)
     return np.stack([_smooth(((distance <= high) & (distance > low)).astype(np.float32), smoothing)
                      for high, low in zip(edges[:-1], edges[1:], strict=True)])
 
@@ -242,7 +264,7 @@ def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, ex
     docstring, 3.)."""
     rows, columns = prediction.shape
     smooth_image = _smooth(image, level.smoothing)
-    bands = coast_bands(prediction, level.smoothing)
+    bands = coast_bands(prediction, level.smoothing, level.bands)
     half, search = level.window // 2, level.search
     shift_column, shift_row = (int(round(v)) for v in expected)
     independent = level.window**2 / max(1.0, 4 * np.pi * level.smoothing**2)
@@ -302,39 +324,36 @@ so that the fits of every level and image share a few compiled shapes."""
 _NO_WEIGHT = 1e12
 """σ (m) of a padding or rejected point: no weight in the fit, no redundancy, w = 0."""
 
-MATCH_OVERLAP_CORRELATION = 0.74
+MATCH_OVERLAP_CORRELATION = 0.86
 """c (dimensionless): the correlation of two coastline matches' errors (per ground axis) is c times the share of
 pixels their windows have in common (:func:`window_overlap`). Maximum likelihood on the true errors of the points
 kept by :func:`coast_control` on the tuning seeds 61000-61079 (80 images of
-``experiments/coast_control_calibration.py``, 6669 points; jointly with the datum terms): 0.74 (0.69-0.79 at a
-likelihood drop of 5-7). Seen first as the points' empirical correlation (seeds 61000-61039): +0.31 for windows of
-40 pixels 20 pixels apart (half their pixels shared), +0.12-0.17 a quarter shared, ~0.05 for neighbours sharing
-none."""
+``experiments/coast_control_calibration.py``, 6590 points; jointly with the datum terms): 0.86 (0.81-0.91 at a
+likelihood drop of 11-18). Before the last level matched with :data:`COAST_STEP`: 0.74."""
 
-COAST_DATUM_SIGMA = 84.0
-"""σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share —
-the coast the image shows and the coastline database (GSHHG, from which the prediction is made) differ by more
-than the matches' noise, alike for neighbouring matches. Maximum likelihood on the tuning seeds 61000-61079 (see
-:data:`MATCH_OVERLAP_CORRELATION`): 84 m (59-110 m at a likelihood drop of 4-5). On the simulated images of
-Lancaster Sound (1 km coast raster, ~1.1 km pixels) part of it is common to all images: the points' weighted mean
-error per image was +17 ± 14 m north and −92 ± 11 m east over seeds 61000-61039 (both pass directions). It is not
-the simulator's raster, whose coast is within 10 m of the GSHHG polygon on average (see
-``experiments/results/coast_control_calibration.md``)."""
+COAST_DATUM_SIGMA = 0.0
+"""σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share,
+where the coast the image shows and the coastline database (GSHHG, from which the prediction is made) differ.
+Maximum likelihood on the tuning seeds 61000-61079 (see :data:`MATCH_OVERLAP_CORRELATION`): 0 — the simulated
+images' coast is the GSHHG coast (the raster's zero line within 10 m of the polygon on average). The 84 m
+estimated before (issue 29; a shift common to all images of +17 north and −92 m east, the matched coast ~120 m
+landward of the database's) was the banded profile's landward bias (:data:`COAST_BANDS`); with :data:`COAST_STEP`
+at the last level the points' weighted mean error per image is +8 ± 6 m north, −36 ± 7 m east and +13 m landward.
+On real images, where database and imaged coast do differ, pass a :class:`CoastErrors` with it."""
 
-COAST_DATUM_GRADIENT_SIGMA = 0.42e-3
+COAST_DATUM_GRADIENT_SIGMA = 0.0
 """σ_g (m per m, dimensionless): σ of each of the four gradients (north and east error along north and east) of
-the error field an image's coastline points share, about their centroid — the shared mismatch of coast and
-database is not a pure shift (e.g. the matched coast lies ~120 m landward of the database's, on average, along
-the coast's normal, which narrows a sound and shrinks an island). Maximum likelihood on the tuning seeds
-61000-61079: 0.42e-3 (0.29-0.55e-3 at a likelihood drop of 5-6; without it the likelihood is 42 lower)."""
+the error field an image's coastline points share, about their centroid. Maximum likelihood on the tuning seeds
+61000-61079: 0 (see :data:`COAST_DATUM_SIGMA`; 0.42e-3 before the last level matched with :data:`COAST_STEP`, the
+landward bias narrowing sounds and shrinking islands)."""
 
-MATCH_ERROR_KURTOSIS = 5.4
+MATCH_ERROR_KURTOSIS = 6.9
 """κ (effective): σ̂0² of a coastline-controlled fit varies (κ − 1)/r about 1, not 2/r, so its global test uses
 r' = 2r/(κ − 1) degrees of freedom (:attr:`~seaice_jax.adjust.orbit.fit.OrbitFit.error_kurtosis`). Measured on the
-tuning seeds 61000-61079 (80 fits with :func:`coast_point_covariance`): var(σ̂0²) r / 2 = 2.19 (90 % 1.67-2.68),
-so κ = 1 + 2 x 2.19. The points' errors whitened by their covariance have a kurtosis of 4.2 themselves (heavier
-tails than normal: the matches the w-test keeps include moderately wrong ones); the rest is the points' σ being
-too small or too large by a factor common to an image."""
+tuning seeds 61000-61079 (80 fits with :func:`coast_point_covariance` and the calibrated constants):
+var(σ̂0²) r / 2 = 2.94, so κ = 1 + 2 x 2.94 (5.4 before the last level matched with :data:`COAST_STEP`): the
+points' σ is too small or too large by a factor common to an image, and the matches the w-test keeps include
+moderately wrong ones."""
 
 
 @dataclass(frozen=True)
