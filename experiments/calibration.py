@@ -33,9 +33,10 @@ own with ``--rows``):
   sweep of ``experiments/sequence_block.py``: ties matched through predicted models, which its ties' cache also
   holds): the same lines and tests for that adjustment (the control points' group test then has q = 16).
 * **tracking** — image pairs of ``experiments/tracking_calibration.py`` (its :func:`pair_errors`): stated: the
-  per-vector σ from the correlation peak with the package's defaults (``CORRELATION_AREA``, ``SIGMA_FLOOR``), for
-  the vectors the package leaves good (not flagged ``MIXED_MOTION``); the flag's rates among the vectors of one
-  motion (false alarms) and across two (detections).
+  per-vector σ from the correlation peak with the package's defaults (``CORRELATION_AREA``, ``SIGMA_FLOOR``), its
+  variance scaled by the neighbour statistic (``DISAGREEMENT_SCALE``; realizations cached without the statistic:
+  the peak's σ alone, said in the row's stated σ), for the vectors the package leaves good (not flagged
+  ``MIXED_MOTION``); the flag's rates among the vectors of one motion (false alarms) and across two (detections).
 * **deformation** — :func:`~seaice_jax.drift.kinematics.deformation` of 80 floes in a 300 km square moving on a
   known linear velocity field, velocities observed with N(0, σ) noise of their stated σ (0.5-2 x 5 mm/s, per
   component); stated: σ of divergence, shear and vorticity per Delaunay triangle, truth: the field's exact rates.
@@ -545,22 +546,26 @@ def tracking_realization(seed: int) -> dict:
 
 
 def row_tracking(seeds, quick: bool = False, deadline=None) -> list[dict]:
-    from tracking_calibration import flag_rates
+    from tracking_calibration import flag_rates, stated_sigma
 
-    from seaice_jax.imagery.tracking import CORRELATION_AREA, SIGMA_FLOOR
+    from seaice_jax.imagery.tracking import CORRELATION_AREA, DISAGREEMENT_SCALE, SIGMA_FLOOR
 
     runs = realizations("tracking", seeds, tracking_realization, deadline)
     if not runs:
         return []
     done = [r["seed"] for r in runs]
+    scaled = all("disagreement" in r for r in runs)  # realizations cached before the scale lack the statistic
 
     def normalized(r, select):
-        sigma = np.sqrt(SIGMA_FLOOR**2 + CORRELATION_AREA * r["c1"])
+        sigma = stated_sigma(r, CORRELATION_AREA, SIGMA_FLOOR, DISAGREEMENT_SCALE if scaled else None)
         return (r["error"] / sigma)[select]
 
     before, _, _ = ratio([normalized(r, np.ones(len(r["uniform"]), bool)) for r in runs])
     edge, _, _ = ratio([normalized(r, ~r["uniform"]) for r in runs])
-    stated = f"σ² = {SIGMA_FLOOR}² + {CORRELATION_AREA} C₁ per axis (the package's defaults)"
+    scale = f"({DISAGREEMENT_SCALE[0]} + {DISAGREEMENT_SCALE[1]} χ²_ν/m) per axis, m the pair's median χ²_ν"
+    stated = (f"σ² = ({SIGMA_FLOOR}² + {CORRELATION_AREA} C₁){scale} (the package's defaults)" if scaled
+              else f"σ² = {SIGMA_FLOOR}² + {CORRELATION_AREA} C₁ per axis (the peak alone: realizations without the "
+              "neighbour statistic)")
     return [entry("tracking: good vectors of one motion", stated, done,
                   [normalized(r, r["uniform"] & ~r["mixed"]) for r in runs]),
             entry("tracking: good vectors across two motions (patch on the fast-ice edge or a coast, not flagged)",

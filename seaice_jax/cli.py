@@ -383,8 +383,8 @@ def _sequence_commands(commands, common) -> None:
                        help="features: ORB matches and a RANSAC similarity transform predict the motion")
     track.add_argument("--tracking-sigma", type=_POSITIVE, default=0.04,
                        help="σ floor of a tracked displacement, pixels per axis: added in quadrature to each "
-                            "vector's σ from its correlation peak (calibrated: experiments/results/"
-                            "tracking_calibration.md)")
+                            "vector's σ from its correlation peak, before the variance is scaled by the "
+                            "neighbour statistic (calibrated: experiments/results/tracking_calibration.md)")
     track.add_argument("--land", default="coastline",
                        help="land: a vector that starts or ends on it is flagged 'on land' (never good) and no floe is "
                             "followed onto it: 'coastline' (GSHHG full resolution, offline), a .npy bool array on the "

@@ -10,12 +10,16 @@ from scipy.ndimage import gaussian_filter, shift
 
 from seaice_jax.errors import SeaiceError
 from seaice_jax.imagery.tracking import (
+    DISAGREEMENT_REFERENCE,
+    DISAGREEMENT_SCALE,
     GOOD,
     MIXED_MOTION,
     MIXED_MOTION_THRESHOLD,
     ON_LAND,
     STATUS,
     TrackingOptions,
+    disagreement_reference,
+    disagreement_variance_scale,
     neighbour_disagreement,
     patch_touches_land,
     track,
@@ -65,8 +69,9 @@ def test_a_patch_across_two_motions_is_flagged_and_one_motion_is_not(two_motion_
     np.testing.assert_allclose(across.d_row[7:], 0.0, atol=0.1)
     statistic = neighbour_disagreement(first, second, rows, columns)
     assert (statistic[:7] > 5 * MIXED_MOTION_THRESHOLD).all() and (statistic[7:] < MIXED_MOTION_THRESHOLD).all()
-    # without the test, the vectors on the edge are good, and they err by far more than their σ
-    unflagged = track(first, second, replace(no_median_test, mixed_motion_threshold=None), points=(rows, columns))
+    # without the test, the vectors on the edge are good, and they err by far more than their peak's σ
+    unflagged = track(first, second, replace(no_median_test, mixed_motion_threshold=None, disagreement_scale=None),
+                      points=(rows, columns))
     assert (unflagged.status == GOOD).all()
     normalised = np.concatenate([(unflagged.d_row[:7] - MOTION[0]) / unflagged.sigma_row[:7],
                                  (unflagged.d_column[:7] - MOTION[1]) / unflagged.sigma_column[:7]])
@@ -110,3 +115,52 @@ def test_the_flag_is_osisaf_close_to_coast_or_edge_and_the_threshold_must_be_pos
     assert MIXED_MOTION == max(STATUS)  # appended: the earlier codes keep their numbers
     with pytest.raises(SeaiceError, match="mixed_motion_threshold"):
         TrackingOptions(mixed_motion_threshold=0.0)
+
+
+def test_the_sigma_is_scaled_by_the_neighbour_statistic(two_motion_pair):
+    """σ² from the peak times a + b χ²_ν / m where the neighbour statistic is measured (m: its median over the call's
+    vectors the flag leaves), the peak's alone where not (issue 29: the vectors across the fast-ice edge the flag
+    misses erred by 1.11 times the peak's σ; their χ²_ν is larger than the pair's typical one)."""
+    first, second = two_motion_pair
+    # fast ice far from the edge, patches that straddle it (the patch's half is 7 pixels), pack ice far from it
+    across = np.arange(EDGE - 7.0, EDGE + 8.0)
+    rows = np.repeat(np.arange(30.0, 91.0, 10.0), across.size + 2)
+    columns = np.tile([30.0, *across, 90.0], 7)
+    options = TrackingOptions(median_threshold=1e9)
+    scaled = track(first, second, options, points=(rows, columns))
+    peak = track(first, second, replace(options, disagreement_scale=None), points=(rows, columns))
+    assert scaled.disagreement is not None and peak.disagreement is not None
+    np.testing.assert_array_equal(scaled.status, peak.status)  # the scale moves no vector and flags nothing
+    np.testing.assert_array_equal(scaled.disagreement, peak.disagreement)
+    tested = np.isfinite(scaled.disagreement)
+    assert tested.sum() >= 40 and not tested[~(scaled.good | (scaled.status == MIXED_MOTION))].any()
+    np.testing.assert_allclose(scaled.disagreement[tested], neighbour_disagreement(
+        first, second, rows[tested], columns[tested]), rtol=1e-12)
+    a, b = DISAGREEMENT_SCALE
+    kept = scaled.disagreement[tested & (scaled.status == GOOD)]  # measured and not flagged
+    assert kept.size >= 20 and disagreement_reference(scaled.disagreement) == np.median(kept)
+    factor = np.where(tested, a + b * np.nan_to_num(scaled.disagreement) / np.median(kept), 1.0)
+    for axis in ("sigma_row", "sigma_column"):
+        np.testing.assert_allclose(getattr(scaled, axis), getattr(peak, axis) * np.sqrt(factor), rtol=1e-12)
+    # the good vectors across the edge (the flag misses some) get a larger σ than those far from it
+    straddling = scaled.good & (np.abs(columns - EDGE) <= 7)
+    far = scaled.good & ((columns == 30.0) | (columns == 90.0))
+    assert straddling.sum() >= 5 and far.sum() == 14
+    assert np.median(factor[straddling]) > 1.0 > 2 * np.median(factor[far])
+    unscaled = track(first, second, replace(options, mixed_motion_threshold=None, disagreement_scale=None),
+                     points=(rows, columns))
+    assert unscaled.disagreement is None  # no neighbour test at all: σ from the peak
+    np.testing.assert_array_equal(unscaled.sigma_row, peak.sigma_row)
+    with pytest.raises(SeaiceError, match="disagreement_scale"):
+        TrackingOptions(disagreement_scale=(-0.1, 0.5))
+
+
+def test_the_reference_of_the_scale_is_the_calls_median_or_the_tuned_one_for_few_vectors():
+    statistic = np.array([0.5, 1.0, 2.0, 9.0, np.nan] * 5)  # 20 measured, 15 of them at most the threshold 4
+    assert disagreement_reference(statistic) == DISAGREEMENT_REFERENCE  # too few for the call's own median
+    many = np.concatenate([statistic, [1.0] * 5])  # now 20 kept, median 1.0 (9.0 is flagged: not counted)
+    assert disagreement_reference(many) == 1.0
+    assert disagreement_reference(many, TrackingOptions(mixed_motion_threshold=None)) == 1.0  # 25 measured, all kept
+    a, b = DISAGREEMENT_SCALE
+    np.testing.assert_allclose(disagreement_variance_scale(many)[:5], [a + b * 0.5, a + b, a + 2 * b, a + 9 * b, 1.0])
+    np.testing.assert_array_equal(disagreement_variance_scale(many, TrackingOptions(disagreement_scale=None)), 1.0)

@@ -3,6 +3,7 @@ by default; each vector's σ comes from its correlation peak, grows with the noi
 the scatter of the errors against a simulation's truth; the drift product carries σ and correlation."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -84,9 +85,10 @@ def test_the_sigma_floor_and_correlation_area_enter_as_stated():
     rng = np.random.default_rng(3)
     texture = gaussian_filter(rng.normal(size=(60, 60)), 1.5)
     moved = shift(texture, (0.3, -0.6), order=3, mode="nearest") + rng.normal(0.0, 0.05, (60, 60))
-    bare = track(texture, moved, TrackingOptions(sigma_floor=0.0))
-    wider = track(texture, moved, TrackingOptions(sigma_floor=0.0, correlation_area=2 * CORRELATION_AREA))
-    floored = track(texture, moved, TrackingOptions(sigma_floor=0.1))
+    peak = TrackingOptions(disagreement_scale=None)  # σ from the peak alone (the scale: test_mixed_motion.py)
+    bare = track(texture, moved, replace(peak, sigma_floor=0.0))
+    wider = track(texture, moved, replace(peak, sigma_floor=0.0, correlation_area=2 * CORRELATION_AREA))
+    floored = track(texture, moved, replace(peak, sigma_floor=0.1))
     ok = bare.good & wider.good & floored.good
     assert ok.sum() > 10
     for name in ("sigma_row", "sigma_column"):
@@ -98,7 +100,7 @@ def test_the_sigma_floor_and_correlation_area_enter_as_stated():
     for bad, message in (({"correlation_area": 0.0}, "correlation_area must be > 0"),
                          ({"sigma_floor": -0.1}, "sigma_floor must be >= 0")):
         with pytest.raises(SeaiceError, match=message):
-            TrackingOptions(**bad)
+            replace(TrackingOptions(), **bad)
 
 
 def test_parser_default_of_the_sigma_floor_is_the_librarys():

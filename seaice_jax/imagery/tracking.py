@@ -24,7 +24,16 @@ displacement's covariance is C = 2 (1 − ρ)/N_eff (−H)⁻¹ pixel², ρ the 
 variance ratio), H its curvature per pixel² (from the quadratic fit), N_eff = patch² / ``correlation_area`` the
 independent samples of the template; σ² = ``sigma_floor``² + diag C per axis (row, column). The two constants are
 calibrated by Monte Carlo against simulated sequences with known drift (``experiments/tracking_calibration.py``,
-seeds 0-29, checked on the fresh seeds 1000-1029: ``experiments/results/tracking_calibration.md``).
+seeds 0-29, checked on the fresh seeds 1000-1029: ``experiments/results/tracking_calibration.md``). **What the
+neighbours say** then scales that variance: σ² → σ² (a + b χ²_ν / m), χ²_ν the vector's neighbour statistic
+(:func:`neighbour_disagreement`, where it is measured), m its median over the vectors of the same call the
+mixed-motion flag leaves (:func:`disagreement_reference`) and ``disagreement_scale`` = (a, b)
+(:data:`DISAGREEMENT_SCALE`). The local scatter of the nine displacements is a second estimate of the peak
+variance's scale, pooled with the model's as in an empirical-Bayes (moderated) variance, the weights fitted on
+vectors of one motion; the scatter is read against the pair's own typical χ²_ν because overlapping patches share
+noise, so that the statistic of one motion is smaller in noisy pairs (median 0.85 against 1.30 in clean ones) at
+the same calibration of the peak's σ. A vector of one motion keeps its σ on average; one whose surroundings
+disagree more than the pair's vectors do (the fast-ice edge the flag misses) gets a larger σ.
 
 Positions are 0-based (row, column) of the images' common :class:`~seaice_jax.geometry.projections.MapGrid`;
 :meth:`Displacements.in_map` gives metres and latitude/longitude.
@@ -54,8 +63,24 @@ its patch is taken to see two motions (:func:`neighbour_disagreement`). Tuned on
 64000-64029 of ``experiments/tracking_calibration.py`` (simulated pairs with fast ice): the neighbour test flags
 1.2 % / 2.2 % of the vectors of one motion without land in their patch (3.2 % / 4.2 % of all of one motion with the
 land rule), and with the land rule 75 % / 76 % of the vectors whose patch straddles the fast-ice edge or the coast;
-the good vectors left are calibrated (empirical / stated σ 1.01 / 0.97; 2.45 / 2.66 without the flag). Between 3.5
-and 5 that ratio moves by 2-4 %."""
+the good vectors left are calibrated (empirical / stated σ 1.01 / 0.97; 2.45 / 2.66 without the flag; σ from the
+peak alone, before :data:`DISAGREEMENT_SCALE`). Between 3.5 and 5 that ratio moves by 2-4 %."""
+DISAGREEMENT_SCALE = (0.337, 0.567)
+"""``(a, b)``: a tracked vector's variance from its peak is scaled by a + b χ²_ν / m, χ²_ν its neighbour statistic
+(:func:`neighbour_disagreement`; 1 where not measured), m the call's reference (:func:`disagreement_reference`).
+Fitted by maximum likelihood (errors Gaussian, both axes) on the good vectors of one motion of the tuning seeds
+0-29 and 64000-64029 of ``experiments/tracking_calibration.py`` (0.351, 0.585 and 0.323, 0.550 fitted on each
+half): there the error / σ from the peak alone grows with χ²_ν (RMS 0.74 at χ²_ν < 0.5 to 1.42 at 3-4) alike
+for vectors of one motion and for those across two motions the flag leaves (0.70 to 1.43), whose χ²_ν is larger
+(median 1.66 against 1.07). With the scale: one motion 1.00, across two motions unflagged 0.98 (0.97 and 1.09
+from the peak alone), 0.96-1.07 in bins of χ²_ν of 0.5 for one motion; by noise level 0.97-1.01 (0.96-0.99 from
+the peak alone; 0.94-1.07 with a + b χ²_ν not referred to m, (0.375, 0.46), which m replaced). Checked on fresh
+seeds in ``experiments/results/calibration.md`` and ``experiments/results/tracking_calibration.md``."""
+DISAGREEMENT_REFERENCE = 1.15
+"""The reference m of :data:`DISAGREEMENT_SCALE` where a call has fewer than :data:`MIN_REFERENCE_VECTORS`
+measured statistics: the median over the tuning pairs of their medians (1.146; 0.77-1.67 from pair to pair)."""
+MIN_REFERENCE_VECTORS = 20
+"""Measured neighbour statistics (not flagged) a call of :func:`track` needs for its own reference m."""
 CORRELATION_AREA = 3.3
 """Calibrated template pixels per independent sample of the tracking σ (``experiments/tracking_calibration.py``)."""
 SIGMA_FLOOR = 0.04
@@ -80,6 +105,9 @@ class TrackingOptions:
         mixed_motion_threshold: χ² per degree of freedom above which the patches beside a vector disagree with it
             (:func:`neighbour_disagreement`) and it is :data:`MIXED_MOTION`; ``None``: no such test (a patch with
             land in it is :data:`MIXED_MOTION` all the same when a land mask is given).
+        disagreement_scale: ``(a, b)``, dimensionless: each σ² from the peak is scaled by a + b χ²_ν / m where the
+            neighbour statistic χ²_ν is measured, m its median over the call (:data:`DISAGREEMENT_SCALE`, calibrated
+            with the defaults of ``correlation_area`` and ``sigma_floor``); ``None``: σ from the peak alone.
     """
 
     patch: int = 15
@@ -94,6 +122,7 @@ class TrackingOptions:
     correlation_area: float = CORRELATION_AREA
     sigma_floor: float = SIGMA_FLOOR
     mixed_motion_threshold: float | None = MIXED_MOTION_THRESHOLD
+    disagreement_scale: tuple[float, float] | None = DISAGREEMENT_SCALE
 
     def __post_init__(self):
         if self.patch < 5 or self.patch % 2 == 0:
@@ -108,6 +137,11 @@ class TrackingOptions:
             raise SeaiceError(f"sigma_floor must be >= 0 pixels, got {self.sigma_floor}")
         if self.mixed_motion_threshold is not None and not self.mixed_motion_threshold > 0:
             raise SeaiceError(f"mixed_motion_threshold must be > 0 or None, got {self.mixed_motion_threshold}")
+        if self.disagreement_scale is not None and not (
+                len(self.disagreement_scale) == 2 and min(self.disagreement_scale) >= 0
+                and sum(self.disagreement_scale) > 0):
+            raise SeaiceError(f"disagreement_scale must be two numbers >= 0, not both 0, or None, got "
+                              f"{self.disagreement_scale}")
 
 
 @dataclass(frozen=True)
@@ -117,8 +151,11 @@ class Displacements:
     Attributes:
         row, column: ``(n,)`` start positions (0-based pixels of the grid). d_row, d_column: ``(n,)`` pixels.
         correlation, sharpness: ``(n,)`` peak NCC and its distinctness. status: ``(n,)`` :data:`STATUS` codes.
-        sigma_row, sigma_column: ``(n,)`` pixels, σ of ``d_row``, ``d_column`` from the correlation peak (module
-            docstring; NaN where not measured).
+        sigma_row, sigma_column: ``(n,)`` pixels, σ of ``d_row``, ``d_column`` from the correlation peak, scaled by
+            the neighbour statistic (module docstring; NaN where not measured).
+        disagreement: ``(n,)`` the neighbour statistic χ²_ν (:func:`neighbour_disagreement`; NaN where not
+            measured: not good before the test, land in the patch, too few satellites), or ``None`` where no
+            neighbour test was run.
     """
 
     row: np.ndarray
@@ -130,6 +167,7 @@ class Displacements:
     status: np.ndarray
     sigma_row: np.ndarray
     sigma_column: np.ndarray
+    disagreement: np.ndarray | None = None
 
     @property
     def good(self) -> np.ndarray:
@@ -242,8 +280,10 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
             :data:`ON_LAND` (a start on land is not tracked), before the median test; a good vector with land in
             its patch (at the start or the end) is :data:`MIXED_MOTION`, after it.
 
-    The median test (:func:`median_test`) comes before the mixed-motion test (``options.mixed_motion_threshold``),
-    which looks at the good vectors left.
+    The median test (:func:`median_test`) comes before the neighbour test, which looks at the good vectors left
+    without land in their patch: its χ²_ν (``disagreement``) flags a vector :data:`MIXED_MOTION` above
+    ``options.mixed_motion_threshold`` and scales its σ² by ``options.disagreement_scale`` (a + b χ²_ν / m, m the
+    median statistic of the vectors tracked in this call that the flag leaves: :func:`disagreement_reference`).
     """
     first, second = np.asarray(first, float), np.asarray(second, float)
     if first.shape != second.shape:
@@ -279,13 +319,45 @@ def track(first, second, options: TrackingOptions = TrackingOptions(), points=No
         half = options.patch // 2
         mixed |= patch_touches_land(land, rows, columns, half) | patch_touches_land(
             land, rows + tested.d_row, columns + tested.d_column, half)
-    if options.mixed_motion_threshold is not None:
+    if options.mixed_motion_threshold is None and options.disagreement_scale is None:
+        disagreement = None
+    else:
         good = np.nonzero(tested.good & ~mixed)[0]
-        mixed[good] = _neighbour_disagreement(images, rows[good], columns[good], guess_row[good],
-                                              guess_column[good], options, tracked) > options.mixed_motion_threshold
+        disagreement = np.full(n, np.nan)
+        disagreement[good] = _neighbour_disagreement(images, rows[good], columns[good], guess_row[good],
+                                                     guess_column[good], options, tracked)
+        if options.mixed_motion_threshold is not None:
+            mixed |= disagreement > options.mixed_motion_threshold  # NaN: not tested, not flagged
     status = tested.status.copy()
     status[tested.good & mixed] = MIXED_MOTION
-    return replace(tested, status=status)
+    root_scale = np.sqrt(disagreement_variance_scale(disagreement, options))
+    return replace(tested, status=status, sigma_row=tested.sigma_row * root_scale,
+                   sigma_column=tested.sigma_column * root_scale, disagreement=disagreement)
+
+
+def disagreement_reference(disagreement, options: TrackingOptions = TrackingOptions()) -> float:
+    """The reference m of the variance scale: the median of the measured statistics ``disagreement`` ``(n,)``
+    (χ²_ν of :func:`neighbour_disagreement`, NaN where not measured) of one call that the mixed-motion flag leaves
+    (at most ``options.mixed_motion_threshold``), the pair's own level of the statistic for one motion;
+    :data:`DISAGREEMENT_REFERENCE` where fewer than :data:`MIN_REFERENCE_VECTORS` are measured."""
+    statistic = np.asarray(disagreement, float)
+    kept = statistic[np.isfinite(statistic)]
+    if options.mixed_motion_threshold is not None:
+        kept = kept[kept <= options.mixed_motion_threshold]
+    return float(np.median(kept)) if kept.size >= MIN_REFERENCE_VECTORS else DISAGREEMENT_REFERENCE
+
+
+def disagreement_variance_scale(disagreement, options: TrackingOptions = TrackingOptions()) -> np.ndarray:
+    """``(n,)`` the factor a + b χ²_ν / m of a vector's σ² from its peak (``options.disagreement_scale`` = (a, b)),
+    ``disagreement`` χ²_ν ``(n,)`` of all the vectors of one call (:func:`neighbour_disagreement`; NaN: not
+    measured, factor 1), m their :func:`disagreement_reference`; ``None`` (no neighbour test): 1. 1 everywhere when
+    ``disagreement_scale`` is ``None``."""
+    if disagreement is None or options.disagreement_scale is None:
+        return np.ones(() if disagreement is None else np.shape(disagreement))
+    base, weight = options.disagreement_scale
+    statistic = np.asarray(disagreement, float)
+    reference = disagreement_reference(statistic, options)
+    return np.where(np.isfinite(statistic), base + weight * np.nan_to_num(statistic) / reference, 1.0)
 
 
 def _as_measured(rows, columns, guess_row, guess_column, status, out, tracked) -> dict:

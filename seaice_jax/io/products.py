@@ -434,7 +434,8 @@ def write_drift_netcdf(path: str | os.PathLike, grid: MapGrid, fields: dict, sta
             data[f"d{axis}_tracking_uncertainty"] = var(
                 fields[f"d{axis}_tracking_uncertainty"], "qualityInformation", units="m",
                 long_name=f"standard error of d{axis} due to the image matching alone (from the correlation peak's "
-                          f"height and curvature; part of d{axis}_uncertainty)")
+                          "height and curvature, its variance scaled by how far the patches around the vector "
+                          f"disagree with it; part of d{axis}_uncertainty)")
         data["correlation"] = var(fields["correlation"], "qualityInformation", units="1", valid_range=np.array(
             [-1.0, 1.0]), long_name="peak normalised cross-correlation of the matched patches")
     if deformation is not None:

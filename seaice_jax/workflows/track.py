@@ -72,7 +72,8 @@ class TrackedPair:
         first: image index. interval: s. status: tracking flags (:data:`~seaice_jax.imagery.tracking.STATUS`).
         x, y: m, start positions; dx, dy: m along the grid axes; sigma: ``(n, 2)`` m of ``dx, dy`` (both images'
         geolocation and the tracking). tracking_sigma: ``(n, 2)`` m, the tracking's part, from each vector's
-        correlation peak. correlation: ``(n,)`` the peak's normalised cross-correlation (NaN where not measured).
+        correlation peak and its neighbour statistic (:func:`~seaice_jax.imagery.tracking.track`). correlation:
+        ``(n,)`` the peak's normalised cross-correlation (NaN where not measured).
         u_east, v_north: m/s toward geographic east and north. deformation: of the Delaunay triangles of the good
         vectors (lattice indices), or ``None`` with fewer than three.
     """
@@ -181,11 +182,12 @@ def follow_floes(stack: RemappedStack, rows, columns, options: TrackingOptions, 
 def track_sequence(stack: RemappedStack, options: TrackingOptions | None = None, progress: bool = False,
                    land=None) -> TrackedSequence:
     """Track the ice between consecutive remapped images; each vector's σ combines its tracking σ (from its
-    correlation peak, :mod:`seaice_jax.imagery.tracking`) with both images' geolocation σ. ``land``: ``(n_rows,
-    n_columns)`` bool on the grid, True on land: a vector that starts or ends on land has the status
-    :data:`~seaice_jax.imagery.tracking.ON_LAND` (never good), and no floe is followed onto or from land; a good
-    vector whose patch reaches over the coast is :data:`~seaice_jax.imagery.tracking.MIXED_MOTION` (so is one
-    whose surrounding patches disagree with it: the fast-ice edge)."""
+    correlation peak and the disagreement of the patches around it, :mod:`seaice_jax.imagery.tracking`) with both
+    images' geolocation σ. ``land``: ``(n_rows, n_columns)`` bool on the grid, True on land: a vector that starts
+    or ends on land has the status :data:`~seaice_jax.imagery.tracking.ON_LAND` (never good), and no floe is
+    followed onto or from land; a good vector whose patch reaches over the coast is
+    :data:`~seaice_jax.imagery.tracking.MIXED_MOTION` (so is one whose surrounding patches disagree with it: the
+    fast-ice edge)."""
     options = options or TrackingOptions()
     if len(stack.names) < 2:
         raise SeaiceError(f"tracking needs at least two images, got {len(stack.names)}")
