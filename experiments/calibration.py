@@ -462,6 +462,21 @@ def sequence_two_realization(seed: int) -> dict:
             "ties": int(out["ties"][1])}
 
 
+def control_tests(quality: dict) -> dict:
+    """The control points' group tests of one adjustment, recomputed from its cached inputs (``quality["control"]``)
+    by :func:`sequence_block.group_test` as it is now (realizations cached before it took C's rank tested T against
+    χ² of all q coordinates, one too many): ``plain`` (the adjustment's weights, C = R) and ``stated`` (C = R + J S
+    Jᵀ), each ``(T, q, two-sided p)``."""
+    from sequence_block import group_test, two_sided_p
+
+    c = quality["control"]
+    out = {}
+    for name, systematic in (("plain", None), ("stated", c["systematic"])):
+        statistic, count, _ = group_test(c["whitened"], c["jacobian"], c["cofactor"], systematic)
+        out[name] = (statistic, count, two_sided_p(statistic, count))
+    return out
+
+
 def sequence_tests(runs) -> dict:
     """The simultaneous adjustment's tests over ``runs`` for :func:`entry`: ``sigma0`` √(T/q) and ``rejected`` of
     the control points' group test under the stochastic model the product states (the ties' correlated and
@@ -469,8 +484,8 @@ def sequence_tests(runs) -> dict:
     ``groups`` the control points' w-test alarms per testable observation (the engine's w, of the adjustment's
     weights; the ties' w-tests are the snooping's: see :func:`sequence_note`)."""
     quality = [r["quality"] for r in runs]
-    return dict(sigma0=[np.sqrt(q["control_test_stated"][0] / q["control_test_stated"][1]) for q in quality],
-                rejected=[q["control_p_stated"] < GLOBAL_ALPHA for q in quality],
+    tests = [control_tests(q)["stated"] for q in quality]
+    return dict(sigma0=[np.sqrt(t / q) for t, q, _ in tests], rejected=[p < GLOBAL_ALPHA for _, _, p in tests],
                 groups={"control": tuple(int(sum(w_alarms(*q["w"]["control"])[k] for q in quality))
                                          for k in range(2))})
 
@@ -483,15 +498,18 @@ def sequence_note(runs) -> str:
     whole = np.array([q["sigma0"] for q in quality])
     rejected = sum(q["global_p"] < GLOBAL_ALPHA for q in quality)
     low, high = wilson(rejected, len(quality))
-    plain = sum(q["control_p"] < GLOBAL_ALPHA for q in quality)
+    tests = [control_tests(q)["plain"] for q in quality]
+    plain = sum(p < GLOBAL_ALPHA for _, _, p in tests)
     plain_low, plain_high = wilson(plain, len(quality))
-    plain_ratio = np.mean([q["control_test"][0] / q["control_test"][1] for q in quality])
+    plain_ratio = np.mean([t / q for t, q, _ in tests])
     removed, rows = sum(q["removed_rows"] for q in quality), sum(q["tie_rows"] for q in quality)
     tie_alarms, tie_testable = (sum(w_alarms(*q["w"]["ties"])[k] for q in quality) for k in range(2))
     factors = np.array([v for q in quality for v in q["variance_factors"].values()])
-    dof = np.median([q["control_test"][1] for q in quality])
+    dof = np.median([q for _, q, _ in tests])
+    coordinates = np.median([np.size(q["control"]["whitened"]) for q in quality])
     return (f"σ̂0 and global test of this line: the control points' group test against the rest of the "
-            f"adjustment with their σ given, T = ṽᵀC⁻¹ṽ ~ χ²(q), q = {dof:.0f} coordinates a sequence (column: "
+            f"adjustment with their σ given, T = ṽᵀC⁺ṽ ~ χ²(q), q = {dof:.0f} a sequence (C's rank: its "
+            f"{coordinates:.0f} coordinates less the directions only the control points fix) (column: "
             f"√mean(T/q)), C = R + J S Jᵀ their residuals' covariance under the stated model (R the redundancy "
             f"block, S the ties' correlated and systematic part of the covariance); with the adjustment's weights "
             f"alone (C = R: the ties' errors independent) mean T/q {plain_ratio:.3f}, rejected {plain}/"

@@ -101,3 +101,30 @@ def test_seed_list_takes_the_place_of_a_rows_fresh_seeds():
     assert module.seed_range("sequence", 3) == [400, 401, 402]
     assert module.seed_range("sequence_2", 2) == [400, 401]
     assert list(module.seed_range("orbit", 2)) == [50000, 50001]
+
+
+def test_group_test_takes_the_rank_where_the_group_alone_fixes_an_unknown():
+    """Where an unknown is fixed by the group's rows alone (the datum the sequences' ties leave free), R = I − J Q Jᵀ
+    is singular: the group's residuals have none along that direction, T is taken on R's rank, q − 1, and its mean
+    over 2000 draws is q − 1 (against χ²(q) it would read low)."""
+    import importlib.util
+
+    import numpy as np
+
+    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    rng = np.random.default_rng(7)
+    design = rng.normal(size=(30, 4))
+    design[6:, 3] = 0.0  # the fourth unknown is seen by the group's six rows only
+    cofactor = np.linalg.inv(design.T @ design)
+    statistics = []
+    for _ in range(2000):
+        observed = rng.normal(size=30)
+        residual = design @ (cofactor @ design.T @ observed) - observed
+        statistic, count, _ = module.group_test(residual[:6], design[:6], cofactor)
+        statistics.append(statistic)
+    assert count == 5
+    assert abs(np.mean(statistics) / 5 - 1) < 0.05
