@@ -28,7 +28,8 @@ def _bad(tmp_path, text, name="points.csv"):
     (lambda t: t.replace("-78.616667", "400", 1), r"points.csv, line 2: point 3030 longitude 400.0° is outside "
                                                   r"\[-180°, 360°\)"),
     (lambda t: t.replace("75.716667", "95", 1), r"points.csv, line 2: point 3030 latitude 95.0° is outside"),
-    (lambda t: t.replace("75.716667", "nan", 1), r"points.csv, line 2: column 'latitude_deg' value 'nan' is not finite"),
+    (lambda t: t.replace("75.716667", "nan", 1),
+     r"points.csv, line 2: column 'latitude_deg' value 'nan' is not finite"),
     (lambda t: t.replace(",164,", ",inf,", 1), r"points.csv, line 2: column 'pixel' value 'inf' is not finite"),
     (lambda t: t + t.splitlines()[1] + "\n", r"points.csv, line 7: point 3030 already measured on line 2"),
     (lambda t: t.replace("id,name", "ident,name"), r"points.csv, line 1: missing column\(s\) id"),

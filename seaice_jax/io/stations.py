@@ -141,8 +141,8 @@ def read_measurements(path: str | os.PathLike, catalogue: list[Station] | None =
     This is what ``seaice simulate lancaster`` writes beside each image
     (:func:`~seaice_jax.io.sequence.write_sequence`) and what a sequence project's ``control`` file is, so a
     simulated image's control points go straight to ``seaice rectify``. Older files still read: ``lat``/``lon``,
-    ``latitude``/``longitude``, ``lat_deg``/``lon_deg`` for the position, and ``sigma_km`` (kilometres) for the σ. The AGRID catalogue is a
-    different file (:func:`read_agrid`).
+    ``latitude``/``longitude``, ``lat_deg``/``lon_deg`` for the position, and ``sigma_km`` (kilometres) for the σ.
+    The AGRID catalogue is a different file (:func:`read_agrid`).
 
     Raises:
         SeaiceError: naming the file and line (and column) at fault, before anything is fitted or written.
