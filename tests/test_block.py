@@ -141,6 +141,7 @@ def test_predicted_sigma_matches_monte_carlo_for_stations_and_drift(small, runs)
     assert correlation.max() > 0.0  # the cross term is there (and the Monte Carlo says it is right)
 
 
+@pytest.mark.slow
 def test_a_planted_blunder_is_flagged_and_named(small):
     scenario, options = small
     data = noisy(scenario, np.random.default_rng(5))

@@ -142,6 +142,7 @@ def test_block_that_does_not_converge_exits_1_and_writes_nothing(project, tmp_pa
                      r"by ", capsys.readouterr().err)
     assert not out.exists()
 
+@pytest.mark.slow
 def test_block_variance_components_are_reported_near_one_on_a_simulation_with_the_stated_errors(project, tmp_path,
                                                                                                capsys):
     """The simulation draws its image and altimeter errors with the default σ: each estimated variance factor is

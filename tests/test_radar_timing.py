@@ -82,6 +82,7 @@ def scene():
     return _scene()
 
 
+@pytest.mark.slow
 def test_offsets_recovered_with_ties(scene):
     orbits, control_rows, control_points, tie_rows, tie_points = scene
     assert tie_points.latitude.size >= 6

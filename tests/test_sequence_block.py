@@ -255,6 +255,7 @@ def _dense_tie_sandwich(result, correlation, factors):
     return (inverse @ middle @ inverse)[:n_theta, :n_theta] / np.outer(norms[:n_theta], norms[:n_theta])
 
 
+@pytest.mark.slow
 def test_correlated_and_systematic_tie_errors_give_the_dense_sandwich_covariance(truth, rng):
     """The covariance with correlated (κ = 2) and systematic tie errors (per pair fields, η 30 / 10) against the
     estimator's covariance computed independently on the dense design of every unknown (no Schur elimination;

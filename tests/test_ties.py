@@ -191,6 +191,7 @@ def test_image_runs_are_bounded_consecutive_and_chained(count):
     assert max(run.size for run in runs) - min(run.size for run in runs) <= 1
 
 
+@pytest.mark.slow
 def test_a_point_seen_by_more_images_than_the_cap_gives_chained_ties(sequence, current):
     """The three images with at most two per tie: every tie joins two images; the ties of one ground point
     (grouped by their positions, 8 pixels apart between points) are consecutive runs of the images that see it,
