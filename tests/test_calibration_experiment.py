@@ -10,6 +10,17 @@ from pathlib import Path
 SCRIPT = Path(__file__).parent.parent / "experiments" / "calibration.py"
 
 
+
+def _script(name: str, path: Path):
+    """The experiment script at ``path`` loaded as the module ``name`` (experiments/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
 def test_quick_table_has_rows_with_finite_ratios(tmp_path):
     out = tmp_path / "calibration.md"
     subprocess.run([sys.executable, str(SCRIPT), "--rows", "deformation,orbit", "--quick", "--cache",
@@ -31,14 +42,9 @@ def test_group_test_is_the_drop_in_square_sum_when_the_group_may_be_biased():
     """sequence_block.group_test on a linear model y = A x + e (σ = 1): T = ṽᵀR⁻¹ṽ of the group's rows equals the
     square sum of all residuals less that of the adjustment without the group (the test of an arbitrary bias in
     it), and diag R is the group's redundancy numbers."""
-    import importlib.util
-
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _script("sequence_block", SCRIPT.parent / "sequence_block.py")
     group_test = module.group_test
 
     rng = np.random.default_rng(3)
@@ -59,14 +65,9 @@ def test_group_test_with_errors_the_weights_leave_out_is_chi_square():
     """With errors of the other observations that the weights leave out (y_o += B c, c ~ N(0, I)) and S their
     covariance of the estimates (Q A_oᵀ B Bᵀ A_o Q), T = ṽᵀ(R + J S Jᵀ)⁻¹ṽ has mean q (χ²(q)) over 2000 draws;
     without S it is larger."""
-    import importlib.util
-
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _script("sequence_block", SCRIPT.parent / "sequence_block.py")
 
     rng = np.random.default_rng(5)
     design = rng.normal(size=(30, 4))
@@ -88,12 +89,7 @@ def test_group_test_with_errors_the_weights_leave_out_is_chi_square():
 def test_seed_list_takes_the_place_of_a_rows_fresh_seeds():
     """--seed-list: comma-separated seeds and inclusive ranges, in place of the row's own fresh seeds (the first
     --seeds of them); without it a row keeps its own."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("calibration", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _script("calibration", SCRIPT)
 
     given = module.parse_seeds("400-402, 53200,53205-53206")
     assert given == [400, 401, 402, 53200, 53205, 53206]
@@ -107,14 +103,9 @@ def test_group_test_takes_the_rank_where_the_group_alone_fixes_an_unknown():
     """Where an unknown is fixed by the group's rows alone (the datum the sequences' ties leave free), R = I − J Q Jᵀ
     is singular: the group's residuals have none along that direction, T is taken on R's rank, q − 1, and its mean
     over 2000 draws is q − 1 (against χ²(q) it would read low)."""
-    import importlib.util
-
     import numpy as np
 
-    spec = importlib.util.spec_from_file_location("sequence_block", SCRIPT.parent / "sequence_block.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _script("sequence_block", SCRIPT.parent / "sequence_block.py")
 
     rng = np.random.default_rng(7)
     design = rng.normal(size=(30, 4))
