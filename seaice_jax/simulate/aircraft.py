@@ -249,13 +249,14 @@ def image_points(points, strips, truths, plan: FlightPlan, errors: ErrorModel, r
         on_side = np.sign(np.sum(offset * right, axis=1)) == float(look_sign(strip.look_side))
         inside = ((times >= strip.start_time) & (times <= strip.end_time) & (ranges >= plan.near_range)
                   & (ranges <= plan.far_range) & on_side)
+        nearest = plan.altitude / truth.range_scale - truth.sweep_delay + plan.nadir_trace  # film y, mm
         for i in np.nonzero(inside)[0]:
             # y is slant range on the film: its measurement noise is constant; the ground-range error it causes
             # grows as 1/sin θ toward near range by the geometry itself. The film moves uniformly; the time marks
             # on it carry their own jitter.
             x = plan.film_rate * (times[i] - strip.start_time) + rng.normal(0.0, errors.image_noise)
             y = ranges[i] / truth.range_scale - truth.sweep_delay + rng.normal(0.0, errors.image_noise)
-            if y >= plan.altitude / truth.range_scale - truth.sweep_delay + plan.nadir_trace:
+            if y >= nearest:
                 rows.append((i, j, x, y))
     rows = np.array(rows, float).reshape(-1, 4)
     return Measurements(rows[:, 0].astype(int), rows[:, 1].astype(int), rows[:, 2], rows[:, 3])
