@@ -95,6 +95,30 @@ def test_the_image_x_sigma_carries_the_time_marks_jitter(flights):
     np.testing.assert_allclose(sigma[:, 1], 0.04)
 
 
+@pytest.mark.parametrize("strips", [6, 10])
+def test_the_drift_prior_is_the_drift_the_simulator_draws_over_the_curve(strips):
+    """The drift coefficient of a navigation curve (rate × its time span, per component) has the prior σ
+    drift_rate_prior × span, in flight scope (the flight's span) and strip scope (the strip's). The simulated INS
+    drifts 0.75 km/h in a random direction, so per flight the north and east coefficients' squares add up to
+    (0.75 km/h × span)² whatever the direction: their mean over the components over σ² is 1 to 1 % on every flight.
+    The fixed σ before (1.5 km per flight, 130 m per strip) was 0.77 or 1.09 of that for flights of 6 or 10 strips."""
+    plan = FlightPlan(strips=strips)
+    errors = ErrorModel().only("drift_rate")
+    for scope in ("flight", "strip"):
+        for k in range(3):
+            records, truths = simulate_flight(plan, errors, np.random.default_rng(980_000 + k), take_off_time=3600.0)
+            times = np.concatenate([r.record_times for r in records])
+            error = np.concatenate([t.navigation_error for t in truths])
+            rate = np.linalg.lstsq(np.stack([np.ones_like(times), times], 1), error, rcond=None)[0][1]  # (2,) m/s
+            names, sigma, _, _, _ = block_unknowns([SimpleNamespace(name="day 0", strips=records)],
+                                                   BlockOptions(navigation_scope=scope))
+            span = (records[-1].end_time - records[0].start_time if scope == "flight"
+                    else records[0].end_time - records[0].start_time)
+            drift = [i for i, name in enumerate(names) if name.endswith(" rate")]
+            assert len(drift) == 2 * (1 if scope == "flight" else strips)
+            np.testing.assert_allclose(np.mean((rate * span) ** 2) / sigma[drift] ** 2, 1.0, rtol=0.01)
+
+
 STRIP_FLIGHTS = 200
 
 

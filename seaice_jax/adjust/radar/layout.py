@@ -132,14 +132,19 @@ def block_unknowns(coverages, options):
                          "schuler": ["offset", "rate", "Schuler sine", "Schuler cosine"]}
     offset = options.resolved_offset_prior()
     offset_sigma = offset if offset is not None else np.inf
-    shape = options.resolved_shape_prior()
-    shape_sigma = shape if shape is not None else np.inf
-    schuler = np.broadcast_to(np.asarray(options.schuler_prior if options.schuler_prior is not None
-                                         else shape_sigma, float), 2)  # north, east
-    # prior σ of the coefficients after the offset, per component (the spline's values all take the offset's)
-    shapes = {component: {"constant": [], "linear": [shape_sigma],
-                          "schuler": [shape_sigma, schuler[k], schuler[k]]}.get(model, [])
-              for k, component in enumerate(_COMPONENTS)}
+    schuler_prior = None if options.schuler_prior is None else np.broadcast_to(np.asarray(options.schuler_prior,
+                                                                                           float), 2)
+
+    def shapes(span) -> dict:
+        """Per component, the prior σ of the coefficients after the offset of a curve spanning ``span`` (s, s)
+        (the spline's values all take the offset's)."""
+        drift = options.drift_prior(span[1] - span[0])
+        drift_sigma = drift if drift is not None else np.inf
+        schuler = schuler_prior if schuler_prior is not None else np.full(2, drift_sigma)  # north, east
+        return {component: {"constant": [], "linear": [drift_sigma],
+                            "schuler": [drift_sigma, schuler[k], schuler[k]]}.get(model, [])
+                for k, component in enumerate(_COMPONENTS)}
+
     turn_sigma = options.turn_prior if options.turn_prior is not None else np.inf
     flight = options.navigation_scope == "flight"
     shared_radar = None
@@ -173,13 +178,13 @@ def block_unknowns(coverages, options):
                 if not flight:
                     navigation += range(len(names), len(names) + q)
                     names += [f"{label} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shapes[component]
+                    prior += [offset_sigma] * q if model == "spline" else [offset_sigma] + shapes(span)[component]
                     previous += [-1] * q
                     continue
                 if component not in shared:
                     shared[component] = list(range(len(names), len(names) + q - 2))
                     names += [f"{coverage.name} navigation {component} {term}" for term in terms]
-                    prior += [offset_sigma] + shapes[component]
+                    prior += [offset_sigma] + shapes(span)[component]
                     previous += [-1] * (q - 2)
                 navigation += [len(names), *shared[component], len(names) + 1]
                 # the turns' perturbations add up along the flight (a random walk): each turn's perturbation, the

@@ -25,13 +25,6 @@ defaults' INS and 300 m per turn). Before issue 29 the strip scope took one σ f
 its priors' residuals had 0.44-0.55 of their expected square sum (1.5 km is 2.5 times the first strips' errors and
 0.65 of the last ones') and σ̂0 0.992-0.996."""
 
-SCOPE_SHAPE_PRIOR = {"flight": 1500.0, "strip": 130.0}
-"""Default σ (m) of the navigation drift coefficient (rate × the curve's time span) per scope: an INS drifting
-0.75 km/h in an unknown direction (0.53 km/h per component) over a flight of about 3 h, or over one 15-min strip
-(the strip's own curve; the flight's 1.5 km there left the strips' drift 11 times looser than the INS: σ̂0 0.988 and
-the global test rejecting 15 % of strip-scope blocks, issue 29)."""
-
-
 @dataclass(frozen=True)
 class BlockOptions:
     """Choices of a simultaneous block adjustment.
@@ -52,18 +45,20 @@ class BlockOptions:
         altimeter_sigma: m.
         offset_prior: σ (m) of the navigation offsets and spline values (``None``: no prior; ``"scope"``: by the
             navigation scope, :data:`SCOPE_OFFSET_PRIOR`).
-        shape_prior: σ (m) of the other navigation coefficients: rate × strip (or flight) duration, Schuler
-            amplitudes (``None``: no prior; ``"scope"``: by the navigation scope, :data:`SCOPE_SHAPE_PRIOR`).
+        shape_prior: σ (m) of the other navigation coefficients: the drift coefficient (rate × the curve's time
+            span) and the Schuler amplitudes without ``schuler_prior`` (``None``: no prior; ``"scope"``:
+            ``drift_rate_prior`` × the span of each curve, the flight's or the strip's, :meth:`drift_prior`).
         schuler_prior: σ (m) of the Schuler sine and cosine amplitudes if they differ from ``shape_prior`` (the
             INS drift over a short flight is far smaller than its Schuler oscillation): one σ, or ``(north, east)``
             (an INS's north and east channels oscillate with different amplitudes). With a random phase each
             coefficient of an oscillation of amplitude A has σ A/√2: the default (1400, 850) m is the simulated
             INS's 2 km north and 1.2 km east (1.3 km for both before: the north terms' residuals had 1.2-1.5 and
             the east ones' 0.4-0.7 of their expected square sum, in either scope).
-        drift_rate_prior: σ (m/s, per component) of the INS drift rate (strip scope): a strip's own offset is the
-            error accumulated since the flight began, so its σ grows with the strip's time
-            (:meth:`accumulated_offset_prior`; ``None``: no growth). The default 530 m/h: 0.75 km/h in an unknown
-            direction.
+        drift_rate_prior: σ (m/s, per component) of the INS drift rate. The drift coefficient of a curve spanning
+            T seconds has σ drift_rate_prior·T (``shape_prior="scope"``: the flight's in flight scope, the strip's
+            in strip scope); in strip scope a strip's own offset is the error accumulated since the flight began,
+            so its σ grows with the strip's time (:meth:`accumulated_offset_prior`; ``None``: no growth, and no
+            drift prior by scope). The default 530 m/h: 0.75 km/h in an unknown direction.
         take_off_time: s on the strips' clock when the flights took off (``None``: unknown). In flight scope the
             flight's curve then starts at take-off: its offset is the INS alignment error (``offset_prior``) and its
             drift grows from zero there, so the drift accumulated before the first strip is tied to the drift
@@ -94,12 +89,12 @@ class BlockOptions:
     along track and in slant range, time marks placed to 0.025 mm along the film (0.05 s at 0.5 mm/s: along track
     0.044-0.047 mm in all, 0.045 mm RMS between the marks); an offset of 530 m at a flight's first strip (the drift
     in the hour before it; a later strip's own curve adds the drift and turns since), a drift of 530 m/h per
-    component (1.5 km over a flight, 130 m over a strip) and a Schuler oscillation of 2 km north and 1.2 km east
-    (coefficients' σ 1.4 and 0.85 km); 300 m per turn (a random walk over the strips) and 3 m of low-frequency
-    record noise left over a strip by the 180-s filter; each strip's sweep delay known to 0.4 mm and its range scale
-    to 0.5 %. On blunder-free simulated AIDJEX blocks they give σ̂0 ≈ 1, the global and w-tests their false-alarm
-    rates and predicted σ that match the errors (``experiments/block_statistics.py``); other platforms need their
-    own.
+    component (1.56 km over a 2.95-h flight, 133 m over a 15-min strip) and a Schuler oscillation of 2 km north and
+    1.2 km east (coefficients' σ 1.4 and 0.85 km); 300 m per turn (a random walk over the strips) and 3 m of
+    low-frequency record noise left over a strip by the 180-s filter; each strip's sweep delay known to 0.4 mm and
+    its range scale to 0.5 %. On blunder-free simulated AIDJEX blocks they give σ̂0 ≈ 1, the global and w-tests
+    their false-alarm rates and predicted σ that match the errors (``experiments/block_statistics.py``); other
+    platforms need their own.
     """
 
     navigation_model: str = "schuler"
@@ -153,11 +148,16 @@ class BlockOptions:
             drift = base + rate * (time - first_start)
         return float(np.sqrt(drift**2 + (self.turn_prior or 0.0) ** 2 * turns))
 
-    def resolved_shape_prior(self) -> float | None:
-        """σ (m) of the drift coefficient (and of the Schuler terms without ``schuler_prior``): ``shape_prior``, or
-        by the scope when it is ``"scope"``."""
+    def drift_prior(self, span: float) -> float | None:
+        """σ (m, per component) of the drift coefficient of a navigation curve spanning ``span`` s (and of its
+        Schuler terms without ``schuler_prior``): ``shape_prior``, or with ``"scope"`` the drift accumulated over
+        the span, ``drift_rate_prior`` × ``span`` (``None``: no prior).
+
+        Issue 29: a fixed 1.5 km for the flight scope (the drift over "about 3 h") was 4 % small for the simulated
+        AIDJEX flights of 2.95 h (1.56 km): the drift priors' w² 1.09 ± 0.02 and the strips' sweep delays, which
+        trade with the across-track offsets, alarming 1.5 α over 1400 blocks."""
         if self.shape_prior == "scope":
-            return SCOPE_SHAPE_PRIOR[self.navigation_scope]
+            return None if self.drift_rate_prior is None else float(self.drift_rate_prior * span)
         return None if self.shape_prior is None else float(self.shape_prior)
 
     def __post_init__(self):
