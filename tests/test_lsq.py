@@ -136,6 +136,26 @@ def test_monte_carlo_statistics_match_predictions(model, truth, noise_scale):
     assert low <= false_alarms <= high
 
 
+def test_the_global_test_for_heavy_tailed_errors_rejects_at_its_level():
+    """Line fits with Laplace errors (kurtosis κ = 6): σ̂0² varies (κ − 1)/r about 1, so the χ² test with r
+    degrees of freedom rejects far more than α; with ``kurtosis=6`` (r' = 2r/(κ − 1)) it rejects α of the fits
+    (within the binomial 0.1-99.9 % range of 2000 fits), and normal errors with ``kurtosis=3`` are the plain test."""
+    n_runs, alpha = 2000, 0.05
+    times = np.linspace(0.0, 2.0, 60)
+    design = np.stack([np.ones_like(times), times], 1)
+    rng = np.random.default_rng(29)
+    errors = rng.laplace(0.0, 1.0 / np.sqrt(2.0), (n_runs, times.size))  # unit variance
+    residuals = errors - errors @ (design @ np.linalg.pinv(design)).T
+    dof = times.size - 2
+    sigma0_squared = np.sum(residuals**2, axis=1) / dof
+    low, high = binom.ppf([0.001, 0.999], n_runs, alpha)
+    plain = int(np.sum(~np.asarray(global_test(sigma0_squared, dof, alpha)[2])))
+    heavy = int(np.sum(~np.asarray(global_test(sigma0_squared, dof, alpha, kurtosis=6.0)[2])))
+    assert plain > 3 * high / 2 and low <= heavy <= high, (plain, heavy)
+    same = global_test(sigma0_squared, dof, alpha, kurtosis=3.0)
+    np.testing.assert_array_equal(np.asarray(same[1]), np.asarray(global_test(sigma0_squared, dof, alpha)[1]))
+
+
 def test_planted_blunder_is_flagged_and_estimated(rng):
     truth = as_params(DECAY_TRUTH)
     y = np.asarray(decay(truth, None)["y"]) + rng.normal(0, SIGMA)

@@ -24,18 +24,23 @@ def noncentrality(alpha=DEFAULT_ALPHA, power=DEFAULT_POWER):
     return critical_value(alpha) + ndtri(jnp.asarray(power, float))
 
 
-def global_test(sigma0_squared, degrees_of_freedom, alpha=0.05):
+def global_test(sigma0_squared, degrees_of_freedom, alpha=0.05, kurtosis=3.0):
     """Chi-square test of the a posteriori variance factor: σ̂0² r ~ χ²_r when the model and σ are right.
+
+    For errors of kurtosis κ ≠ 3 (E z⁴ / (E z²)² of the whitened errors) σ̂0² varies (κ − 1)/r about 1, not 2/r:
+    the test then takes σ̂0² r' ~ χ²_r' with r' = 2r/(κ − 1) degrees of freedom (a scaled χ² of the right mean and
+    variance, Satterthwaite's approximation).
 
     Args:
         sigma0_squared: σ̂0² = vᵀPv / r.
         degrees_of_freedom: r (> 0; with r = 0 there is nothing to test).
         alpha: two-sided significance level.
+        kurtosis: κ (> 1; 3: normal errors, r' = r).
 
     Returns:
-        ``(statistic, p_value, accepted)``: statistic = σ̂0² r; two-sided p-value; accepted = p_value ≥ α.
+        ``(statistic, p_value, accepted)``: statistic = σ̂0² r'; two-sided p-value; accepted = p_value ≥ α.
     """
-    dof = jnp.asarray(degrees_of_freedom, float)
+    dof = 2.0 * jnp.asarray(degrees_of_freedom, float) / (kurtosis - 1.0)
     statistic = sigma0_squared * dof
     lower = chi2.cdf(statistic, dof)
     p_value = 2.0 * jnp.minimum(lower, 1.0 - lower)

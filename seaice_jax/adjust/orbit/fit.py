@@ -299,7 +299,7 @@ class OrbitFit:
         dof = None if self.adjustment is None else self.adjustment.degrees_of_freedom
         if self.adjustment is None or dof is None or dof <= 0:
             return None
-        _, p_value, accepted = global_test(self.adjustment.sigma0**2, 2.0 * dof / (self.error_kurtosis - 1.0), alpha)
+        _, p_value, accepted = global_test(self.adjustment.sigma0**2, dof, alpha, self.error_kurtosis)
         return float(p_value), bool(accepted)
 
     def flagged_w_test(self, alpha=DEFAULT_ALPHA):
