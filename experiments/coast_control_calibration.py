@@ -32,6 +32,7 @@ import os
 import pickle
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -39,7 +40,13 @@ import numpy as np
 
 from seaice_jax import MEAN_RADIUS
 from seaice_jax.adjust.engine.quality import global_test
-from seaice_jax.imagery.coast_control import MATCH_SIGMA_SCALE, coast_control
+from seaice_jax.imagery.coast_control import (
+    DEFAULT_LEVELS,
+    MATCH_SIGMA_SCALE,
+    CoastErrors,
+    coast_control,
+    coast_point_covariance,
+)
 from seaice_jax.io.coastline import coastline_of_grid
 from seaice_jax.simulate.satellite import DAY, ice_scene, noaa_pass, render
 
@@ -78,6 +85,8 @@ def rectified(seed: int, scale: float) -> dict:
             "dof": int(adjustment.degrees_of_freedom), "check": check_rms(result.model, truth),
             "points": len(control), "removed": sum(len(r) for r in result.rejected), "error": error,
             "sigma": np.broadcast_to(np.asarray(control.sigma, float), (len(control),)),
+            "pixel": np.asarray(control.pixel, float), "scan": np.asarray(control.scan, float),
+            "latitude": np.asarray(control.latitude, float), "longitude": np.asarray(control.longitude, float),
             "fit": result.fit, "truth": truth}
 
 
@@ -128,6 +137,50 @@ def effective_kurtosis(rows, alpha: float = GLOBAL_ALPHA) -> dict:
                       tuple(np.percentile(np.quantile(critical[draws], 1.0 - alpha, axis=1), [5, 95])))}
 
 
+def datum_sigma(rows, errors: CoastErrors | None = None) -> tuple[float, tuple[float, float]]:
+    """σ_c (m): maximum likelihood of the shift all of an image's coastline points share
+    (``CoastErrors.datum_sigma``, the package's ``COAST_DATUM_SIGMA``), the other terms of ``errors`` fixed: the
+    kept points' true errors, north and east alike and independent, N(0, Σ(σ_c)) with Σ of
+    :func:`coast_point_covariance` (windows of the last level), over all images; with its likelihood-ratio 90 %
+    interval (a drop of 1.35)."""
+    window, errors = DEFAULT_LEVELS[-1].window, errors or CoastErrors()
+    bases = [(coast_point_covariance(r["sigma"], r["pixel"], r["scan"], r["latitude"], r["longitude"], window,
+                                     replace(errors, datum_sigma=0.0)), r["error"]) for r in rows]
+
+    def log_likelihood(sigma_c: float) -> float:
+        total = 0.0
+        for covariance, error in bases:
+            factor = np.linalg.cholesky(covariance + sigma_c**2)
+            white = np.linalg.solve(factor, error)
+            total -= 0.5 * np.sum(white**2) + error.shape[1] * np.sum(np.log(np.diag(factor)))
+        return total
+
+    grid = np.linspace(0.0, 150.0, 151)
+    values = np.array([log_likelihood(g) for g in grid])
+    best = int(np.argmax(values))
+    inside = grid[values >= values[best] - 1.35]
+    return float(grid[best]), (float(inside.min()), float(inside.max()))
+
+
+def shared_error(rows) -> list[str]:
+    """Per imaging geometry (pass direction, subtrack on or off the image): the mean over images of the kept
+    points' weighted mean error (weights 1/σ², m north and east) with its standard error — a bias the images
+    share on the ground whatever the scan direction is an error of where the matched coast lies."""
+    groups: dict = {}
+    for r in rows:
+        weight = 1.0 / r["sigma"] ** 2
+        key = (r["direction"], "subtrack on the image" if (r["seed"] // 2) % 2 == 0 else "subtrack off it")
+        groups.setdefault(key, []).append((r["error"] * weight[:, None]).sum(axis=0) / weight.sum())
+    groups[("all", "")] = [m for values in list(groups.values()) for m in values]
+    lines = []
+    for (direction, subtrack), values in groups.items():
+        values = np.array(values)
+        mean, error = values.mean(axis=0), values.std(axis=0, ddof=1) / np.sqrt(len(values))
+        lines.append(f"| {' '.join(filter(None, (direction, subtrack)))} | {len(values)} | {mean[0]:+.0f} ± {error[0]:.0f} | "
+                     f"{mean[1]:+.0f} ± {error[1]:.0f} | {values.std(axis=0, ddof=1).mean():.0f} |")
+    return lines
+
+
 def pooled_sigma0(rows) -> float:
     """σ̂0 of all fits together: √(Σ σ̂0² r / Σ r)."""
     return float(np.sqrt(sum(r["sigma0"] ** 2 * r["dof"] for r in rows) / sum(r["dof"] for r in rows)))
@@ -169,6 +222,7 @@ def main():
     if tuned is not None:
         print(f"tuned match_sigma_scale: {tuned:.3f}", flush=True)
     kurtosis = {scale: effective_kurtosis(rows) for scale, rows in tuning.items()}
+    datum = {scale: datum_sigma(rows) for scale, rows in tuning.items()}
     fresh = collect(range(*args.check), MATCH_SIGMA_SCALE)
     seconds = time.perf_counter() - begin
     load = os.getloadavg()
@@ -197,6 +251,16 @@ def main():
                     f"by moments (1 + mean r (σ̂0² − 1)²) {k['moments'][0]:.2f} ({k['moments'][1][0]:.2f}-"
                     f"{k['moments'][1][1]:.2f})" for scale, k in kurtosis.items())
         + ".",
+        "",
+        "Shared shift σ_c of an image's coastline points (maximum likelihood, the other terms of `CoastErrors()` "
+        "fixed; 90 % by the likelihood ratio): "
+        + "; ".join(f"{sigma:.0f} m ({low:.0f}-{high:.0f} m) at scale {scale:g} (fits with σ_c "
+                    f"{CoastErrors().datum_sigma:g} m)" for scale, (sigma, (low, high)) in datum.items())
+        + ".",
+        "",
+        "The kept points' weighted mean error per image (m; the tuning seeds):", "",
+        "| pass | images | north | east | scatter per image (RMS of the two axes) |", "|---|---|---|---|---|",
+        *[line for rows in tuning.values() for line in shared_error(rows)],
         "",
         *header,
         *[row for scale, rows in tuning.items()
