@@ -176,8 +176,9 @@ def shared_error(rows) -> list[str]:
     for (direction, subtrack), values in groups.items():
         values = np.array(values)
         mean, error = values.mean(axis=0), values.std(axis=0, ddof=1) / np.sqrt(len(values))
-        lines.append(f"| {' '.join(filter(None, (direction, subtrack)))} | {len(values)} | {mean[0]:+.0f} ± {error[0]:.0f} | "
-                     f"{mean[1]:+.0f} ± {error[1]:.0f} | {values.std(axis=0, ddof=1).mean():.0f} |")
+        label = " ".join(filter(None, (direction, subtrack)))
+        lines.append(f"| {label} | {len(values)} | {mean[0]:+.0f} ± {error[0]:.0f} | {mean[1]:+.0f} ± {error[1]:.0f} | "
+                     f"{values.std(axis=0, ddof=1).mean():.0f} |")
     return lines
 
 
