@@ -26,7 +26,7 @@ own with ``--rows``):
   control points per image; stated: the drift σ due to the models (``displacement_sigma`` (x, y) of the joint
   covariance) against the exact drift error at every pack-ice cell, and the position σ (north, east) at random
   pixels against the model's true error there. Tests of the simultaneous adjustment: the control points' group
-  test (``sequence_block.group_test``, their σ given) as the global test, their w-tests; the whole adjustment's
+  test (the package's ``group_test``, their σ given) as the global test, their w-tests; the whole adjustment's
   σ̂0 and global test (little to test: the ties' variance factors are estimated) and the ties' removals by the
   snooping (real mismatches among them, not a false-alarm rate) in the row's note.
 * **sequence_2** — the same sequences adjusted with the first 2 control points of every image (the control-point
@@ -473,23 +473,25 @@ def sequence_two_realization(seed: int) -> dict:
 
 def control_tests(quality: dict) -> dict:
     """The control points' group tests of one adjustment, recomputed from its cached inputs (``quality["control"]``)
-    by :func:`sequence_block.group_test` as it is now (realizations cached before it took C's rank tested T against
+    by the package's ``group_test`` as it is now (realizations cached before it took C's rank tested T against
     χ² of all q coordinates, one too many): ``plain`` (the adjustment's weights, C = R) and ``stated`` (C = R + J S
     Jᵀ), each ``(T, q, two-sided p)``."""
-    from sequence_block import group_test, two_sided_p
+    from sequence_block import two_sided_p
+
+    from seaice_jax.adjust.engine.quality import group_test
 
     c = quality["control"]
     out = {}
     for name, systematic in (("plain", None), ("stated", c["systematic"])):
-        statistic, count, _ = group_test(c["whitened"], c["jacobian"], c["cofactor"], systematic)
-        out[name] = (statistic, count, two_sided_p(statistic, count))
+        statistic, count = (float(v) for v in group_test(c["whitened"], c["jacobian"], c["cofactor"], systematic)[:2])
+        out[name] = (statistic, int(count), two_sided_p(statistic, int(count)))
     return out
 
 
 def sequence_tests(runs) -> dict:
     """The simultaneous adjustment's tests over ``runs`` for :func:`entry`: ``sigma0`` √(T/q) and ``rejected`` of
     the control points' group test under the stochastic model the product states (the ties' correlated and
-    systematic errors included: :func:`sequence_block.group_test` with ``systematic``; α = :data:`GLOBAL_ALPHA`),
+    systematic errors included: the package's ``group_test`` with ``systematic``; α = :data:`GLOBAL_ALPHA`),
     ``groups`` the control points' w-test alarms per testable observation (the engine's w, of the adjustment's
     weights; the ties' w-tests are the snooping's: see :func:`sequence_note`)."""
     quality = [r["quality"] for r in runs]

@@ -75,10 +75,11 @@ from seaice_jax import (
     track,
     wrap_angle,
 )
-from seaice_jax.adjust.engine.problem import linearize
+from seaice_jax.adjust.engine.quality import group_test
 from seaice_jax.adjust.orbit.fit import position_jacobian
 from seaice_jax.adjust.orbit.multi_image import sequential_fit
 from seaice_jax.adjust.sequence.adjustment import sequence_problem, systematic_tie_covariance
+from seaice_jax.adjust.sequence.control_test import control_rows
 from seaice_jax.adjust.sequence.model import scan_unknowns, with_scan_unknowns
 from seaice_jax.imagery.ties import transfer
 from seaice_jax.simulate.satellite import true_displacement
@@ -238,52 +239,6 @@ def group_factors(result):
     return {kind: square / redundancy for kind, (square, redundancy) in sums.items() if redundancy > 0}
 
 
-def control_rows(result):
-    """The control-point observations of ``result`` (a ``SequenceAdjustment``) at its solution: their whitened
-    residuals (computed − known over σ) ``(q,)`` and their whitened Jacobian with respect to all images' unknowns
-    ``(q, 5 n_images)``, the rows of every control group, north and east of each point (padding rows left out)."""
-    problem = sequence_problem(result.observations)
-    theta, points = result.adjustment.parameters["theta"], result.adjustment.parameters["points"]
-    whitened, jacobian = [], []
-    for name, block in problem.blocks.items():
-        if not name.startswith("control"):
-            continue
-        linear = linearize(block, theta, points)
-        real = np.asarray(jnp.isfinite(block.sigma)).reshape(-1)
-        columns = np.asarray(block.global_index)  # (m, k)
-        dense = np.zeros(block.sigma.shape + (int(theta.shape[0]),))  # (m, c, n)
-        rows = np.arange(block.rows)[:, None, None]
-        np.add.at(dense, (rows, np.arange(block.components)[None, :, None], columns[:, None, :]),
-                  np.asarray(linear.theta))
-        whitened.append(np.asarray(linear.e).reshape(-1)[real])
-        jacobian.append(dense.reshape(-1, dense.shape[-1])[real])
-    if not whitened:
-        return np.zeros(0), np.zeros((0, int(theta.shape[0])))
-    return np.concatenate(whitened), np.concatenate(jacobian)
-
-
-def group_test(whitened, jacobian, cofactor, systematic=None, tolerance: float = 1e-6):
-    """Test of a group of observations without unknowns of its own (the control points) against the rest of the
-    adjustment, their σ taken as given (Teunissen, *Testing Theory*, 2000: the test of an arbitrary bias in the
-    group): T = ṽᵀ C⁻¹ ṽ ~ χ²(q) when the model and every σ are right, with ṽ ``(q,)`` the group's whitened
-    residuals, J ``(q, n)`` their whitened Jacobian, Q ``(n, n)`` the cofactor of the unknowns and C = R = I − J Q Jᵀ
-    the group's block of the redundancy matrix. With ``systematic`` S ``(n, n)``, the part of the unknowns'
-    covariance due to errors of the other observations that their weights leave out (the ties' correlated and
-    systematic errors: ``SequenceAdjustment.systematic``, independent of the group's errors), C = R + J S Jᵀ.
-    C may be singular: a direction of the unknowns that only the group determines (in the sequences, one the ties
-    leave free: R has one eigenvalue 0 in every adjustment of tuning seeds 300-304, 326-329, with 12 and with 2
-    control points an image) leaves the group's residuals none along it, so T is taken on C's rank (its
-    eigenvalues above ``tolerance`` times the largest; those dropped are ~1e-10 against ≥ 1e-3 kept) and q is
-    that rank. Returns ``(T, q, diag R (q,))`` (diag R: the redundancy numbers, one per observation)."""
-    whitened, jacobian = np.asarray(whitened, float), np.asarray(jacobian, float)
-    redundancy = np.eye(whitened.size) - jacobian @ np.asarray(cofactor, float) @ jacobian.T
-    covariance = redundancy if systematic is None else redundancy + jacobian @ np.asarray(systematic) @ jacobian.T
-    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
-    keep = values > tolerance * values.max()
-    projected = vectors[:, keep].T @ whitened
-    return float(np.sum(projected**2 / values[keep])), int(keep.sum()), np.diag(redundancy).copy()
-
-
 def two_sided_p(statistic: float, degrees_of_freedom: float) -> float:
     """Two-sided p-value of a χ² statistic."""
     from scipy.stats import chi2
@@ -314,8 +269,9 @@ def adjustment_quality(result):
     removed_rows = int(sum(np.sum(~np.isfinite(s)) for s in tie_sigma))
     whitened, jacobian = control_rows(result)
     cofactor, systematic = np.asarray(result.cofactor), np.asarray(result.systematic)
-    statistic, count, _ = group_test(whitened, jacobian, cofactor)
-    stated, stated_count, _ = group_test(whitened, jacobian, cofactor, systematic)
+    statistic, count = (float(v) for v in group_test(whitened, jacobian, cofactor)[:2])
+    stated, stated_count = (float(v) for v in group_test(whitened, jacobian, cofactor, systematic)[:2])
+    count, stated_count = int(count), int(stated_count)
     dof = int(result.degrees_of_freedom)
     return {"sigma0": float(result.sigma0), "degrees_of_freedom": dof,
             "global_p": two_sided_p(float(result.sigma0) ** 2 * dof, dof),

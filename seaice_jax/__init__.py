@@ -92,6 +92,7 @@ if TYPE_CHECKING:
     from seaice_jax.adjust.radar.block import simultaneous_block
     from seaice_jax.adjust.radar.timing import adjust_radar_timing
     from seaice_jax.adjust.sequence.adjustment import adjust_sequence
+    from seaice_jax.adjust.sequence.control_test import control_test
     from seaice_jax.adjust.engine import least_squares, robust_adjustment, solve, variance_components
     from seaice_jax.imagery.remap import remap
     from seaice_jax.imagery.ties import find_ties
@@ -103,6 +104,7 @@ if TYPE_CHECKING:
     from seaice_jax.adjust.orbit.fit import OrbitFit
     from seaice_jax.adjust.radar.block import BlockResult
     from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment
+    from seaice_jax.adjust.sequence.control_test import ControlTest
     from seaice_jax.imagery.ties import TiePoints
     from seaice_jax.imagery.tracking import Displacements
     from seaice_jax.drift.records import FloeRecords

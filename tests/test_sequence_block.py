@@ -20,6 +20,7 @@ from seaice_jax.adjust.sequence.adjustment import (
     sequence_problem,
     systematic_tie_covariance,
 )
+from seaice_jax.adjust.sequence.control_test import control_test
 from seaice_jax.adjust.sequence.model import (
     scan_unknowns,
     sequence_observations,
@@ -435,3 +436,24 @@ def test_the_default_covariance_carries_all_three_tie_error_terms(truth, rng):
     assert all(np.all(np.diag(part) > 0) for part in parts)
     scale = np.sqrt(np.outer(np.diag(result.systematic), np.diag(result.systematic)))
     assert np.abs((result.systematic - sum(parts)) / scale).max() < 1e-8
+
+
+@pytest.mark.slow
+def test_the_control_test_names_a_control_point_that_disagrees_with_the_ties(truth, rng):
+    """The control points' test against the ties (``control_test``, their σ as given): control points drawn with
+    their σ (500 m) agree with the ties (accepted), and the same with one moved by 5 km are rejected; the test is on
+    C's rank, fewer than the 36 control coordinates (a direction only the control points fix). The exact points of
+    the fixture are rejected too — as too good (T far below q)."""
+    models, ties, controls = truth
+    start, observed = perturbed(models, rng), noisy(ties, rng)
+    exact = control_test(adjust_sequence(start, observed, controls, options=INDEPENDENT))
+    assert exact is not None and not exact.accepted and exact.statistic < 0.5 * exact.degrees_of_freedom
+    radius = 6.371e6
+    drawn = [replace(c, latitude=c.latitude + rng.normal(0, 500.0, 6) / radius,
+                     longitude=c.longitude + rng.normal(0, 500.0, 6) / (radius * np.cos(c.latitude)))
+             for c in controls]
+    tested = control_test(adjust_sequence(start, observed, drawn, options=INDEPENDENT))
+    assert tested is not None and tested.accepted and 30 <= tested.degrees_of_freedom < 36
+    moved = replace(drawn[1], latitude=drawn[1].latitude + np.where(np.arange(6) == 2, 5000.0 / radius, 0.0))
+    tested = control_test(adjust_sequence(start, observed, [drawn[0], moved, drawn[2]], options=INDEPENDENT))
+    assert tested is not None and not tested.accepted and tested.p_value < 1e-6

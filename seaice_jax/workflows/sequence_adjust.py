@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment, SequenceOptions, adjust_sequence
+from seaice_jax.adjust.sequence.control_test import control_test
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
@@ -122,6 +123,13 @@ def adjust_report(result: AdjustedSequence) -> str:
         for group, factor in adjusted.variance_factors.items():
             lines.append(f"  {group}: σ estimated {np.sqrt(factor):.2f} times the a priori (variance factor "
                          f"{factor:.3g}); the covariance uses it")
+        tested = control_test(adjusted)
+        if tested is not None:
+            verdict = ("accepted" if tested.accepted else
+                       "rejected: the control points and the ties disagree beyond their stated σ")
+            lines.append(f"  control points against the ties and the other images (their σ as given, the ties' "
+                         f"correlated errors as stated): T {tested.statistic:.1f} on {tested.degrees_of_freedom} "
+                         f"degrees of freedom, two-sided p {tested.p_value:.3f} at α = {tested.alpha}: {verdict}")
         for flag in adjusted.flagged()[:5]:
             lines.append(f"  still flagged: {flag.group} row {flag.row} component {flag.component}, w {flag.w:.1f}")
     sigma = np.sqrt(np.diag(result.covariance)).reshape(-1, len(SCAN_UNKNOWNS))

@@ -47,6 +47,34 @@ def global_test(sigma0_squared, degrees_of_freedom, alpha=0.05, kurtosis=3.0):
     return statistic, p_value, p_value >= alpha
 
 
+def group_test(whitened, jacobian, cofactor, systematic=None, tolerance=1e-6):
+    """Test of a group of observations without unknowns of their own (e.g. control points) against the rest of an
+    adjustment, their σ taken as given (Teunissen, *Testing Theory*, 2000: the test of an arbitrary bias in the
+    group): T = ṽᵀ C⁺ ṽ ~ χ²(q) when the model and every σ are right.
+
+    C = R = I − J Q Jᵀ is the group's block of the redundancy matrix; with ``systematic`` S, the part of the
+    unknowns' covariance due to errors of the other observations that their weights leave out (independent of the
+    group's errors), C = R + J S Jᵀ. C may be singular: a direction of the unknowns that only the group determines
+    leaves its residuals none along it, so T is taken on C's rank (eigenvalues above ``tolerance`` times the
+    largest) and q is that rank.
+
+    Args:
+        whitened: ``(q0,)`` the group's whitened residuals ṽ. jacobian: ``(q0, n)`` their whitened Jacobian J.
+        cofactor: ``(n, n)`` Q of the unknowns. systematic: ``(n, n)`` S or ``None``.
+
+    Returns:
+        ``(T, q, diag R (q0,))``: the statistic, its degrees of freedom (C's rank) and the redundancy numbers.
+    """
+    whitened, jacobian = jnp.asarray(whitened, float), jnp.asarray(jacobian, float)
+    redundancy = jnp.eye(whitened.size) - jacobian @ jnp.asarray(cofactor, float) @ jacobian.T
+    covariance = redundancy if systematic is None else redundancy + jacobian @ jnp.asarray(systematic) @ jacobian.T
+    values, vectors = jnp.linalg.eigh(0.5 * (covariance + covariance.T))
+    keep = values > tolerance * values.max()
+    projected = vectors.T @ whitened
+    statistic = jnp.sum(jnp.where(keep, projected**2 / jnp.where(keep, values, 1.0), 0.0))
+    return statistic, jnp.sum(keep), jnp.diag(redundancy)
+
+
 def w_test(whitened_residuals, redundancy):
     """Baarda's w-statistic per observation: v_i / (σ_i √r_i), standard normal without a blunder.
 
