@@ -2,6 +2,7 @@
 (``group_test``): Monte Carlo over a linear model whose truth is known, with a direction of the unknowns only the
 group determines (C singular) and with errors of the other observations that their weights leave out."""
 
+import jax
 import numpy as np
 import pytest
 from scipy.stats import binom, chi2
@@ -28,17 +29,15 @@ def _statistics(shared_sigma: float, with_systematic: bool):
     # its part in the unknowns' covariance: the estimate moves by K direction g, K = Q A_tᵀ, g ~ N(0, shared²)
     moved = cofactor @ ties.T @ direction
     systematic = shared_sigma**2 * np.outer(moved, moved) if with_systematic else None
-    out = []
-    for _ in range(DRAWS):
-        errors = rng.normal(size=46)
-        errors[:40] += shared_sigma * rng.normal() * direction
-        estimate = cofactor @ design.T @ errors  # truth 0
-        residual = control @ estimate - errors[40:]
-        statistic, count, redundancy = group_test(residual, control, cofactor, systematic)
-        out.append((float(statistic), int(count)))
+    errors = rng.normal(size=(DRAWS, 46))
+    errors[:, :40] += shared_sigma * rng.normal(size=(DRAWS, 1)) * direction
+    estimates = errors @ design @ cofactor  # the least-squares estimates (truth 0), Q Aᵀ e per draw
+    residuals = estimates @ control.T - errors[:, 40:]
+    statistic, count, redundancy = jax.vmap(group_test, in_axes=(0, None, None, None))(residuals, control, cofactor,
+                                                                                         systematic)
     hat = design @ np.linalg.pinv(design)  # the redundancy numbers by the hat matrix, another path
-    np.testing.assert_allclose(np.asarray(redundancy), 1.0 - np.diag(hat)[40:], atol=1e-12)
-    return np.array(out)
+    np.testing.assert_allclose(np.asarray(redundancy[0]), 1.0 - np.diag(hat)[40:], atol=1e-12)
+    return np.stack([np.asarray(statistic), np.asarray(count)], axis=1)
 
 
 @pytest.mark.parametrize("shared_sigma", [0.0, 1.0])
