@@ -13,10 +13,13 @@ The stated σ is ``match_sigma_scale`` times the σ from the correlation peak (t
 C = (1 − ρ²)/(ρ n) (−H_ρ)⁻¹) per pixel, at least ``minimum_sigma`` pixel. ``match_sigma_scale`` is tuned so that
 the pooled σ̂0 of the tuning seeds' fits is 1: the tuning seeds are run at each of ``--scales`` and the scale where
 σ̂0 crosses 1 is interpolated (σ̂0 does not fall as 1/scale: a larger σ lets the w-test keep more of the moderately
-wrong matches). With one scale the run estimates the fits' effective kurtosis κ instead, the package's
+wrong matches); with one scale nothing is tuned. At each scale the run estimates the fits' effective kurtosis κ, the
+package's
 ``MATCH_ERROR_KURTOSIS`` (:func:`effective_kurtosis`): σ̂0² of a coastline fit varies more than χ²(r)/r, because
 the matches' errors are heavy-tailed and their σ off by a factor shared by an image's points, so the global test
-takes r' = 2r/(κ − 1) degrees of freedom; κ is set where that test rejects α of the tuning fits. The package's
+takes r' = 2r/(κ − 1) degrees of freedom; κ is set where that test rejects α of the tuning fits. It also gives the
+points' correlated-error model by maximum likelihood (:func:`error_model`: the package's ``MATCH_OVERLAP_CORRELATION``
+and ``COAST_DATUM_SIGMA``) and their error shared per imaging geometry (:func:`shared_error`). The package's
 defaults are then checked on fresh seeds (``--check``; ``experiments/calibration.py``'s coast row checks them on
 its own fresh seeds).
 
@@ -32,7 +35,6 @@ import os
 import pickle
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -137,29 +139,35 @@ def effective_kurtosis(rows, alpha: float = GLOBAL_ALPHA) -> dict:
                       tuple(np.percentile(np.quantile(critical[draws], 1.0 - alpha, axis=1), [5, 95])))}
 
 
-def datum_sigma(rows, errors: CoastErrors | None = None) -> tuple[float, tuple[float, float]]:
-    """σ_c (m): maximum likelihood of the shift all of an image's coastline points share
-    (``CoastErrors.datum_sigma``, the package's ``COAST_DATUM_SIGMA``), the other terms of ``errors`` fixed: the
-    kept points' true errors, north and east alike and independent, N(0, Σ(σ_c)) with Σ of
-    :func:`coast_point_covariance` (windows of the last level), over all images; with its likelihood-ratio 90 %
-    interval (a drop of 1.35)."""
-    window, errors = DEFAULT_LEVELS[-1].window, errors or CoastErrors()
-    bases = [(coast_point_covariance(r["sigma"], r["pixel"], r["scan"], r["latitude"], r["longitude"], window,
-                                     replace(errors, datum_sigma=0.0)), r["error"]) for r in rows]
+def error_model(rows) -> dict:
+    """The coastline points' correlated-error model by maximum likelihood (the package's
+    ``MATCH_OVERLAP_CORRELATION`` and ``COAST_DATUM_SIGMA``; the datum gradient left at 0): the kept points' true
+    errors, north and east alike and independent, N(0, Σ(c, σ_c)) with Σ of :func:`coast_point_covariance` (windows
+    of the last level), over all images, on a grid of c (0.70-0.98, steps of 0.005) and σ_c (0-60 m, steps of 5 m).
+    Returns ``{"overlap_correlation": (c, (low, high)), "datum_sigma": (σ_c, (low, high))}``, each with its
+    profile-likelihood 90 % interval (a drop of 1.35)."""
+    window = DEFAULT_LEVELS[-1].window
+    parts = []
+    for r in rows:
+        overlap = coast_point_covariance(r["sigma"], r["pixel"], r["scan"], r["latitude"], r["longitude"], window,
+                                         CoastErrors(1.0, 0.0, 0.0))  # S K S
+        parts.append((np.diag(np.diag(overlap)), overlap, r["error"]))
+    correlations, shifts = np.linspace(0.70, 0.98, 57), np.linspace(0.0, 60.0, 13)
+    values = np.zeros((correlations.size, shifts.size))
+    for i, c in enumerate(correlations):
+        for j, sigma_c in enumerate(shifts):
+            for own, overlap, error in parts:
+                factor = np.linalg.cholesky((1.0 - c) * own + c * overlap + sigma_c**2)
+                white = np.linalg.solve(factor, error)
+                values[i, j] -= 0.5 * np.sum(white**2) + error.shape[1] * np.sum(np.log(np.diag(factor)))
+    best = np.unravel_index(int(np.argmax(values)), values.shape)
 
-    def log_likelihood(sigma_c: float) -> float:
-        total = 0.0
-        for covariance, error in bases:
-            factor = np.linalg.cholesky(covariance + sigma_c**2)
-            white = np.linalg.solve(factor, error)
-            total -= 0.5 * np.sum(white**2) + error.shape[1] * np.sum(np.log(np.diag(factor)))
-        return total
+    def profile(grid, axis):
+        inside = grid[values.max(axis=axis) >= values.max() - 1.35]
+        return float(inside.min()), float(inside.max())
 
-    grid = np.linspace(0.0, 150.0, 151)
-    values = np.array([log_likelihood(g) for g in grid])
-    best = int(np.argmax(values))
-    inside = grid[values >= values[best] - 1.35]
-    return float(grid[best]), (float(inside.min()), float(inside.max()))
+    return {"overlap_correlation": (float(correlations[best[0]]), profile(correlations, 1)),
+            "datum_sigma": (float(shifts[best[1]]), profile(shifts, 0))}
 
 
 def shared_error(rows) -> list[str]:
@@ -223,7 +231,7 @@ def main():
     if tuned is not None:
         print(f"tuned match_sigma_scale: {tuned:.3f}", flush=True)
     kurtosis = {scale: effective_kurtosis(rows) for scale, rows in tuning.items()}
-    datum = {scale: datum_sigma(rows) for scale, rows in tuning.items()}
+    model = {scale: error_model(rows) for scale, rows in tuning.items()}
     fresh = collect(range(*args.check), MATCH_SIGMA_SCALE)
     seconds = time.perf_counter() - begin
     load = os.getloadavg()
@@ -253,10 +261,13 @@ def main():
                     f"{k['moments'][1][1]:.2f})" for scale, k in kurtosis.items())
         + ".",
         "",
-        "Shared shift σ_c of an image's coastline points (maximum likelihood, the other terms of `CoastErrors()` "
-        "fixed; 90 % by the likelihood ratio): "
-        + "; ".join(f"{sigma:.0f} m ({low:.0f}-{high:.0f} m) at scale {scale:g} (fits with σ_c "
-                    f"{CoastErrors().datum_sigma:g} m)" for scale, (sigma, (low, high)) in datum.items())
+        "The points' correlated-error model by maximum likelihood (`CoastErrors`; the datum gradient 0; 90 % by the "
+        "profile likelihood): "
+        + "; ".join(f"at scale {scale:g}: overlap correlation c {m['overlap_correlation'][0]:.2f} "
+                    f"({m['overlap_correlation'][1][0]:.2f}-{m['overlap_correlation'][1][1]:.2f}; the package's "
+                    f"{CoastErrors().overlap_correlation:g}), shared shift σ_c {m['datum_sigma'][0]:.0f} m "
+                    f"({m['datum_sigma'][1][0]:.0f}-{m['datum_sigma'][1][1]:.0f} m; the package's "
+                    f"{CoastErrors().datum_sigma:g} m)" for scale, m in model.items())
         + ".",
         "",
         "The kept points' weighted mean error per image (m; the tuning seeds):", "",

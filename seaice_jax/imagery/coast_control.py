@@ -329,7 +329,8 @@ MATCH_OVERLAP_CORRELATION = 0.86
 pixels their windows have in common (:func:`window_overlap`). Maximum likelihood on the true errors of the points
 kept by :func:`coast_control` on the tuning seeds 61000-61079 (80 images of
 ``experiments/coast_control_calibration.py``, 6590 points; jointly with the datum terms): 0.86 (0.81-0.91 at a
-likelihood drop of 11-18). Before the last level matched with :data:`COAST_STEP`: 0.74."""
+likelihood drop of 11-18). Before the last level matched with :data:`COAST_STEP`: 0.74. Reproduced on the 200 tuning
+images 61000-61199 by ``experiments/coast_control_calibration.py``: 0.86 (0.86-0.88, profile likelihood)."""
 
 COAST_DATUM_SIGMA = 0.0
 """σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share,
@@ -339,7 +340,7 @@ images' coast is the GSHHG coast (the raster's zero line within 10 m of the poly
 estimated before (issue 29; a shift common to all images of +17 north and −92 m east, the matched coast ~120 m
 landward of the database's) was the banded profile's landward bias (:data:`COAST_BANDS`); with :data:`COAST_STEP`
 at the last level the points' weighted mean error per image is +8 ± 6 m north, −36 ± 7 m east and +13 m landward.
-Again 0 (0-19 m) on 200 tuning images 61000-61199 with the other constants fixed
+Again 0 (0-20 m) on 200 tuning images 61000-61199, jointly with the overlap correlation
 (``experiments/coast_control_calibration.py``), where that error is +13 ± 4 m north, −29 ± 4 m east in every
 imaging geometry: a bias all images share on the ground (what the last level still puts landward on rendered
 images), which no random shift per image describes; it makes the rectified model's error at check pixels 1.12 times
