@@ -331,11 +331,10 @@ def row_orbit(seeds, quick: bool = False, deadline=None) -> list[dict]:
 def coast_realization(seed: int) -> dict:
     """One image of ``experiments/coast_control_calibration.py`` rectified by the coastline control (the
     package's ``MATCH_SIGMA_SCALE`` and correlated-error model ``CoastErrors()``), with the rectified model's error
-    and stated σ at check pixels, the fit's global test (``rejected``; ``rejected_plain``: χ² with r degrees of
-    freedom, as if the errors were normal) and the kept points' image positions."""
+    and stated σ at check pixels and the kept points' image positions (the fit's global test: :func:`coast_rejected`,
+    from σ̂0 and the degrees of freedom)."""
     from coast_control_calibration import rectified
 
-    from seaice_jax.adjust.engine.quality import global_test
     from seaice_jax.adjust.orbit.fit import position_uncertainty
     from seaice_jax.imagery.coast_control import MATCH_SIGMA_SCALE
 
@@ -345,21 +344,19 @@ def coast_realization(seed: int) -> dict:
     pixel, scan = check_pixels(rng, truth.n_pixels, truth.n_scans)
     r["check_error"] = north_east_error(fit.model, truth, pixel, scan)
     r["check_sigma"] = np.stack([np.asarray(s) for s in position_uncertainty(fit, pixel, scan)], 1)
-    tested = fit.global_test(GLOBAL_ALPHA)  # the fit's own test (its errors' kurtosis: MATCH_ERROR_KURTOSIS)
-    r["rejected"] = tested is not None and not tested[1]
-    _, _, accepted = global_test(r["sigma0"] ** 2, r["dof"], GLOBAL_ALPHA)
-    r["rejected_plain"] = not bool(accepted)  # χ² with r degrees of freedom (normal errors)
     r["pixel"], r["scan"] = np.asarray(fit.control.pixel), np.asarray(fit.control.scan)
     return r
 
 
-def coast_rejected(r: dict) -> bool:
-    """The fit's global test (``OrbitFit.global_test``) recomputed from its cached σ̂0 and degrees of freedom with
-    the package's ``MATCH_ERROR_KURTOSIS`` as it is now (realizations cached before κ changed keep their fits)."""
+def coast_rejected(r: dict, kurtosis: float | None = None) -> bool:
+    """The fit's global test (``OrbitFit.global_test``) from its cached σ̂0 and degrees of freedom, with the
+    package's ``MATCH_ERROR_KURTOSIS`` as it is now (``kurtosis`` 3: as if the errors were normal, χ² with r
+    degrees of freedom)."""
     from seaice_jax.adjust.engine.quality import global_test
     from seaice_jax.imagery.coast_control import MATCH_ERROR_KURTOSIS
 
-    return not bool(global_test(r["sigma0"] ** 2, r["dof"], GLOBAL_ALPHA, MATCH_ERROR_KURTOSIS)[2])
+    kurtosis = MATCH_ERROR_KURTOSIS if kurtosis is None else kurtosis
+    return not bool(global_test(r["sigma0"] ** 2, r["dof"], GLOBAL_ALPHA, kurtosis)[2])
 
 
 def common_error(error, sigma) -> np.ndarray:
@@ -382,10 +379,9 @@ def row_coast(seeds, quick: bool = False, deadline=None) -> list[dict]:
              f"{np.sqrt(np.mean(common**2)):.2f} (1 if independent), mean north {common[:, 0].mean():+.2f}, east "
              f"{common[:, 1].mean():+.2f} (± {1 / np.sqrt(len(runs)):.2f}): errors shared by an image's points "
              "(in the fit's covariance since issue 29: CoastErrors)")
-    if all("rejected_plain" in r for r in runs):
-        plain = sum(r["rejected_plain"] for r in runs)
-        note += (f"; the global test as if the errors were normal (χ² with r degrees of freedom, not the fit's "
-                 f"r' = 2r/(κ − 1)): {plain}/{len(runs)} rejected")
+    plain = sum(coast_rejected(r, 3.0) for r in runs)
+    note += (f"; the global test as if the errors were normal (χ² with r degrees of freedom, not the fit's "
+             f"r' = 2r/(κ − 1)): {plain}/{len(runs)} rejected")
     tests = dict(sigma0=[r["sigma0"] for r in runs], rejected=[coast_rejected(r) for r in runs], note=note)
     return [entry("coast control: control points kept", "each point's σ (MATCH_SIGMA_SCALE x the correlation "
                   "peak's), true ground error north/east", done,

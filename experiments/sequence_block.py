@@ -75,7 +75,7 @@ from seaice_jax import (
     track,
     wrap_angle,
 )
-from seaice_jax.adjust.engine.quality import group_test
+from seaice_jax.adjust.engine.quality import global_test, group_test
 from seaice_jax.adjust.orbit.fit import position_jacobian
 from seaice_jax.adjust.orbit.multi_image import sequential_fit
 from seaice_jax.adjust.sequence.adjustment import sequence_problem, systematic_tie_covariance
@@ -240,10 +240,8 @@ def group_factors(result):
 
 
 def two_sided_p(statistic: float, degrees_of_freedom: float) -> float:
-    """Two-sided p-value of a χ² statistic."""
-    from scipy.stats import chi2
-
-    return float(2 * min(chi2.cdf(statistic, degrees_of_freedom), chi2.sf(statistic, degrees_of_freedom)))
+    """Two-sided p-value of a χ² statistic (the package's global test of statistic / degrees of freedom)."""
+    return float(global_test(statistic / degrees_of_freedom, degrees_of_freedom)[1])
 
 
 def adjustment_quality(result):

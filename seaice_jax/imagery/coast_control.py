@@ -63,12 +63,15 @@ coast (0.13-0.16 pixel when the image is the prediction itself, 0.17 on simulate
 level therefore matches with :data:`COAST_STEP`."""
 
 COAST_STEP = (0.0,)
-"""The profile of land against everything else (one bin, d > 0; sea, fast ice and pack are the baseline): no bin
-can stand in for the coast, so the peak is symmetric about it and its position unbiased (0.00 ± 0.002 pixel when the
-image is the prediction, +0.04 ± 0.01 on simulated images with their fast ice and pack, against +0.17 with
-:data:`COAST_BANDS`; with the true model's prediction, tuning seeds 61000-61019), and tighter (RMS 0.45 pixel, not
-0.53). Too little model for the whole image's search (on seeds 61000 and 61001 it found shifts 30-40 pixels off)
-and fewer matches at the first level, so it is for the last level, which starts within a pixel or two."""
+"""The profile of land against everything else (one bin, d > 0; sea, fast ice and pack are the baseline): no free
+sea bin can take the land's brightness, so the peak does not lean landward as with :data:`COAST_BANDS` (0.00 ±
+0.002 pixel when the image is the prediction, +0.04 ± 0.01 on simulated images with their fast ice and pack, against
++0.17 with the bands; with the true model's prediction, tuning seeds 61000-61019), and tighter (RMS 0.45 pixel, not
+0.53). It is unbiased only where the sea beside the coast is like the rest of the window's sea: one baseline for
+fast ice and pack leaves the peak lopsided where they differ, a lean still open in issue 29 (the ground bias of
+:data:`COAST_DATUM_SIGMA`). Too little model for the whole image's search (on seeds 61000 and 61001 it found
+shifts 30-40 pixels off) and fewer matches at the first level, so it is for the last level, which starts within a
+pixel or two."""
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class MatchLevel:
             shift). window: side of the square templates. step: spacing of the template centres.
         smoothing: σ of the Gaussian applied to image and prediction.
         bands: signed distances (pixels, > 0 on land) bounding the brightness profile's bins
-            (:data:`COAST_BANDS`, or :data:`COAST_STEP` for an unbiased position).
+            (:data:`COAST_BANDS`, or :data:`COAST_STEP` for a position without the bands' landward lean).
     """
 
     search: int
@@ -102,7 +105,7 @@ fall as 1/factor."""
 
 DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7, COAST_STEP))
 """Coarse to fine: after the first level's global shift (``search`` of :func:`coast_control`) the windows look only a
-few pixels around it; the last level's control points are matched with the unbiased :data:`COAST_STEP`."""
+few pixels around it; the last level's control points are matched with :data:`COAST_STEP`."""
 
 
 @dataclass(frozen=True)

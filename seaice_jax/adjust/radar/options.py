@@ -154,8 +154,8 @@ class BlockOptions:
         the span, ``drift_rate_prior`` × ``span`` (``None``: no prior).
 
         Issue 29: a fixed 1.5 km for the flight scope (the drift over "about 3 h") was 4 % small for the simulated
-        AIDJEX flights of 2.95 h (1.56 km): the drift priors' w² 1.09 ± 0.02 and the strips' sweep delays, which
-        trade with the across-track offsets, alarming 1.5 α over 1400 blocks."""
+        AIDJEX flights of 2.95 h (1.56 km): the drift priors' w² was 1.09 ± 0.02 over 1400 blocks, 1.00 with the
+        span (``experiments/results/calibration.md``)."""
         if self.shape_prior == "scope":
             return None if self.drift_rate_prior is None else float(self.drift_rate_prior * span)
         return None if self.shape_prior is None else float(self.shape_prior)

@@ -6,10 +6,9 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.stats import chi2
 
 from seaice_jax.adjust.engine.problem import linearize
-from seaice_jax.adjust.engine.quality import group_test
+from seaice_jax.adjust.engine.quality import global_test, group_test
 from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment, sequence_problem
 
 
@@ -67,6 +66,5 @@ def control_test(result: SequenceAdjustment, alpha: float = 0.05, stated: bool =
     statistic, count = float(statistic), int(count)
     if count == 0:
         return None
-    lower = float(chi2.cdf(statistic, count))
-    p_value = 2.0 * min(lower, 1.0 - lower)
-    return ControlTest(statistic, count, p_value, p_value >= alpha, alpha)
+    _, p_value, accepted = global_test(statistic / count, count, alpha)
+    return ControlTest(statistic, count, float(p_value), bool(accepted), alpha)
