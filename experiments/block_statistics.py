@@ -209,10 +209,15 @@ def block_statistics(seed, options):
     for k, (drift, covariance) in enumerate(zip(result.drift, result.drift_covariance, strict=True)):
         errors["drift"].append(drift - (sim.truth[k + 1].positions - sim.truth[k].positions))
         covariances["drift"].append(covariance)
+    # each strip's radar constants: estimate − truth over the stated σ (sweep delay, range scale)
+    truths = [t for truth in sim.truth for t in truth.strips]
+    radar = np.array([((e.sweep_delay - t.sweep_delay) / e.sigma_sweep_delay,
+                       (e.range_scale - t.range_scale) / e.sigma_range_scale)
+                      for e, t in zip(result.strips, truths, strict=True)])
     return dict(seed=seed, sigma0=result.sigma0, dof=result.degrees_of_freedom, accepted=bool(accepted),
                 converged=result.converged, alarms=alarms, w_squares=w_squares, every_row=every_row,
                 errors={k: np.concatenate(v) for k, v in errors.items()},
-                covariances={k: np.concatenate(v) for k, v in covariances.items()}, variates=variates)
+                covariances={k: np.concatenate(v) for k, v in covariances.items()}, variates=variates, radar=radar)
 
 
 def _named(result, point, coverage, strip=None, component=None, group="image"):
@@ -393,11 +398,16 @@ def summarize(rows):
         ratio[k], interval[k], conditioned[k], conditioned_interval[k] = normalized(
             [(r["errors"][k], r["covariances"][k], r["variates"][k]) for r in rows])
     rejected = int(sum(not r["accepted"] for r in rows))
+    radar = [r["radar"] for r in rows if "radar" in r]  # older pickles lack it
+    draws = np.random.default_rng(0).integers(0, max(len(radar), 1), (2000, len(radar)))
+    radar_ratio = (np.sqrt(np.mean(np.concatenate(radar) ** 2, axis=0)), np.percentile(
+        [np.sqrt(np.mean(np.concatenate([radar[i] for i in pick]) ** 2, axis=0)) for pick in draws], [2.5, 97.5],
+        axis=0).T) if radar else None
     return dict(count=len(rows), sigma0=sigma0.mean(), sigma0_sd=sigma0.std(ddof=1) if len(rows) > 1 else np.nan,
                 sigma0_min=sigma0.min(), sigma0_max=sigma0.max(), dof=np.mean([r["dof"] for r in rows]),
                 converged=int(sum(r["converged"] for r in rows)), rejected=rejected,
                 rejected_interval=wilson(rejected, len(rows)), alarms=alarms, alarm_interval=alarm_interval,
-                mean_w2=mean_w2,
+                mean_w2=mean_w2, radar_ratio=radar_ratio,
                 every_row=every_row, ratio=ratio,
                 interval=interval, conditioned=conditioned, conditioned_interval=conditioned_interval,
                 fixes={k: np.sqrt(np.mean([r["variates"][k] for r in rows], axis=0)) for k in ratio},
@@ -461,6 +471,10 @@ def report(summaries, blunders, budget, navigation, options, args, elapsed, load
                           for i in range(2)) for s in values], "0.9-1.1")
             row("… the stations' fixes alone (expectation 1)", [
                 ", ".join(f"{s['fixes'][key][i]:.2f}" for i in range(2)) for s in values], "1 (chance)")
+        if all(s.get("radar_ratio") is not None for s in values):
+            row("σ ratio: each strip's sweep delay, range scale (estimate − truth over the stated σ; 95 % interval)",
+                [", ".join(f"{s['radar_ratio'][0][i]:.3f} ({s['radar_ratio'][1][i, 0]:.3f}-"
+                           f"{s['radar_ratio'][1][i, 1]:.3f})" for i in range(2)) for s in values], "0.9-1.1")
         lines += ["", "### w-test alarms per testable observation (redundancy > 1e-12), α = 0.001", "",
                   "| group | " + " | ".join(f"scope {s}: alarms / testable = rate (÷ α; 95 % interval ÷ α: "
                                               "binomial; blocks resampled); mean w² of the testable (1)"
