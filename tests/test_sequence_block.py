@@ -292,10 +292,11 @@ def test_bad_options_are_named():
 
 
 @pytest.mark.slow
-def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):
+def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path, capsys):
     """``seaice simulate lancaster`` writes the truth (land cells do not move, pack cells do); ``seaice adjust``
-    writes models whose covariance couples the images (per image: block diagonal); ``seaice remap --models`` adopts
-    them, and a models file of other images is refused naming the file."""
+    writes models whose covariance couples the images (per image: block diagonal) and reports the control points'
+    test against the ties; ``seaice remap --models`` adopts them, and a models file of other images is refused
+    naming the file."""
     project = tmp_path / "seq" / "sequence.toml"
     assert main(["--no-compile-cache", "simulate", "lancaster", "--out", str(project.parent), "--images", "2",
                  "--size", "256"]) == 0
@@ -305,7 +306,9 @@ def test_cli_adjust_then_remap_adopts_the_joint_covariance(tmp_path):
     assert np.abs(dx[land]).max() < 1e-3 and np.abs(dx[~np.load(project.parent / "static_mask.npy")]).max() > 1000.0
     for method in ("simultaneous", "per-image"):
         assert main(["--no-compile-cache", "adjust", str(project), "--out", str(tmp_path / method), "--method",
-                     method, "--quiet"]) == 0
+                     method]) == 0
+        reported = capsys.readouterr().out
+        assert ("control points against the ties and the other images" in reported) == (method == "simultaneous")
     sequence = read_sequence(project)
     _, joint, _ = load_models(tmp_path / "simultaneous" / "models.npz", sequence)
     _, separate, _ = load_models(tmp_path / "per-image" / "models.npz", sequence)

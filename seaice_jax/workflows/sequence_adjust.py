@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from seaice_jax.adjust.sequence.adjustment import SequenceAdjustment, SequenceOptions, adjust_sequence
-from seaice_jax.adjust.sequence.control_test import control_test
+from seaice_jax.adjust.sequence.control_test import ControlTest, control_test
 from seaice_jax.errors import SeaiceError
 from seaice_jax.files import write_csv
 from seaice_jax.geometry.scan import SCAN_UNKNOWNS
@@ -41,7 +41,9 @@ class AdjustedSequence:
             their unknowns (block diagonal for ``per-image``). sigma0: σ̂0 (per image: the RMS of the fits' σ̂0).
         method: ``"simultaneous"`` or ``"per-image"``. start: the per-image fits (the simultaneous adjustment's
             starting models). ties: the tie points (``None`` per image). adjustment: the
-            :class:`SequenceAdjustment` (``None`` per image).
+            :class:`SequenceAdjustment` (``None`` per image). control: the control points' test against the ties
+            (:func:`~seaice_jax.adjust.sequence.control_test.control_test`; ``None`` per image or without
+            redundancy among them).
     """
 
     names: tuple[str, ...]
@@ -52,6 +54,7 @@ class AdjustedSequence:
     start: tuple
     ties: TiePoints | None = None
     adjustment: SequenceAdjustment | None = None
+    control: ControlTest | None = None
 
 
 def static_surface_interior(mask: np.ndarray) -> np.ndarray:
@@ -108,7 +111,7 @@ def adjust_project(project: SequenceProject, method: str = "simultaneous", stati
     adjusted = adjust_sequence(start, ties, [im.control for im in project.images], options=options or SequenceOptions(),
                                image_names=names)
     return AdjustedSequence(names, adjusted.models, adjusted.covariance, adjusted.sigma0, method, start, ties,
-                            adjusted)
+                            adjusted, control_test(adjusted))
 
 
 def adjust_report(result: AdjustedSequence) -> str:
@@ -123,10 +126,12 @@ def adjust_report(result: AdjustedSequence) -> str:
         for group, factor in adjusted.variance_factors.items():
             lines.append(f"  {group}: σ estimated {np.sqrt(factor):.2f} times the a priori (variance factor "
                          f"{factor:.3g}); the covariance uses it")
-        tested = control_test(adjusted)
+        tested = result.control
         if tested is not None:
             verdict = ("accepted" if tested.accepted else
-                       "rejected: the control points and the ties disagree beyond their stated σ")
+                       "rejected: the control points and the ties disagree beyond their stated σ"
+                       if tested.statistic > tested.degrees_of_freedom else
+                       "rejected: the control points agree better than their stated σ (σ too large)")
             lines.append(f"  control points against the ties and the other images (their σ as given, the ties' "
                          f"correlated errors as stated): T {tested.statistic:.1f} on {tested.degrees_of_freedom} "
                          f"degrees of freedom, two-sided p {tested.p_value:.3f} at α = {tested.alpha}: {verdict}")
