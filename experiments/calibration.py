@@ -80,6 +80,7 @@ import numpy as np
 from seaice_jax import SeaiceError
 
 sys.path.insert(0, str(Path(__file__).parent))
+from block_statistics import wilson  # noqa: E402  (the experiments' one Wilson interval)
 
 RESULTS = Path(__file__).with_name("results")
 CACHE = RESULTS / ".cache"
@@ -147,16 +148,6 @@ def ratio(normalized, resamples: int = RESAMPLES, seed: int = 0) -> tuple[float,
     resampled = np.sqrt(sums[draws].sum(axis=1) / counts[draws].sum(axis=1))
     low, high = np.percentile(resampled, [5, 95])
     return float(np.sqrt(sums.sum() / counts.sum())), (float(low), float(high)), int(counts.sum())
-
-
-def wilson(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
-    """95 % Wilson score interval of a binomial proportion."""
-    if trials == 0:
-        return float("nan"), float("nan")
-    p = successes / trials
-    centre = (p + z**2 / (2 * trials)) / (1 + z**2 / trials)
-    half = z / (1 + z**2 / trials) * np.sqrt(p * (1 - p) / trials + z**2 / (4 * trials**2))
-    return max(centre - half, 0.0), min(centre + half, 1.0)
 
 
 def w_alarms(w, redundancy, alpha: float = W_ALPHA) -> tuple[int, int]:

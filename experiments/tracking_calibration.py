@@ -35,6 +35,7 @@ Run: ``.venv/bin/python experiments/tracking_calibration.py [--tune 0 30] [--tun
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -52,6 +53,9 @@ from seaice_jax.imagery.tracking import (
     disagreement_variance_scale,
 )
 from seaice_jax.simulate.satellite import land_mask, true_displacement
+
+sys.path.insert(0, str(Path(__file__).parent))
+from block_statistics import wilson  # noqa: E402  (the experiments' one Wilson interval)
 
 RESULTS = Path(__file__).with_name("results")
 SIZE = 256
@@ -121,6 +125,14 @@ def collect(seeds) -> list[dict]:
     return runs
 
 
+def _gaussian_deviance(error, variance) -> float:
+    """−2 log-likelihood (less its constant) of zero-mean normal ``error`` of ``variance`` (∞ where a variance is
+    not positive): what :func:`fit` and :func:`fit_scale` minimise."""
+    if not np.all(variance > 0):
+        return np.inf
+    return float(np.sum(error**2 / variance + np.log(variance)))
+
+
 def fit(runs) -> tuple[float, float]:
     """``(correlation_area κ, sigma_floor f)``: maximum likelihood of the errors of one motion under
     N(0, f² + κ C₁), both axes pooled."""
@@ -129,8 +141,7 @@ def fit(runs) -> tuple[float, float]:
 
     def negative_log_likelihood(log_parameters):
         kappa, floor = np.exp(log_parameters)
-        variance = floor**2 + kappa * c1
-        return float(np.sum(error**2 / variance + np.log(variance)))
+        return _gaussian_deviance(error, floor**2 + kappa * c1)
 
     result = minimize(negative_log_likelihood, np.log([3.0, 0.05]), method="Nelder-Mead",
                       options={"xatol": 1e-6, "fatol": 1e-8})
@@ -150,10 +161,7 @@ def fit_scale(runs) -> tuple[float, float]:
                                 for r, s in zip(runs, select, strict=True)])
 
     def negative_log_likelihood(parameters):
-        scaled = variance * (parameters[0] + parameters[1] * statistic)
-        if not np.all(scaled > 0):
-            return np.inf
-        return float(np.sum(error**2 / scaled + np.log(scaled)))
+        return _gaussian_deviance(error, variance * (parameters[0] + parameters[1] * statistic))
 
     result = minimize(negative_log_likelihood, [1.0, 0.1], method="Nelder-Mead",
                       options={"xatol": 1e-6, "fatol": 1e-8})
@@ -257,20 +265,12 @@ def flag_rates(runs) -> str:
         flagged = sum(int((select(r) & r["mixed"]).sum()) for r in runs)
         land = sum(int((select(r) & r["land_in_patch"]).sum()) for r in runs)
         count = sum(int(select(r).sum()) for r in runs)
-        low, high = _wilson(flagged, count)
+        low, high = wilson(flagged, count)
         return (f"{flagged}/{count} = {100 * flagged / count:.1f} % ({100 * low:.1f}-{100 * high:.1f} %; land in the "
                 f"patch {100 * land / count:.1f} %, the neighbour test {100 * (flagged - land) / count:.1f} %)")
 
     return (f"Flagged mixed motion: of one motion {rate(one_motion)} (false alarms); across two motions "
             f"{rate(two_motions)} (detections).")
-
-
-def _wilson(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
-    """95 % Wilson score interval of a binomial proportion."""
-    p = successes / trials
-    centre = (p + z**2 / (2 * trials)) / (1 + z**2 / trials)
-    half = z / (1 + z**2 / trials) * np.sqrt(p * (1 - p) / trials + z**2 / (4 * trials**2))
-    return max(centre - half, 0.0), min(centre + half, 1.0)
 
 
 def one_motion(run) -> np.ndarray:
