@@ -78,6 +78,22 @@ def rough_start(model, rng):
                                 model.orbital_angle_first + along * ALONG_ERROR / MEAN_RADIUS))
 
 
+def true_pass(k: int, rng, latitude: float, longitude: float):
+    """The true scan model of image ``k``: a south pass for even ``k``, north for odd; the subtrack on the image for
+    ``k`` mod 4 in (0, 1), off it otherwise; centred 60 km (σ) from the scene's centre ``(latitude, longitude)``
+    radians (draws from ``rng``)."""
+    direction = "south" if k % 2 == 0 else "north"
+    on_image = (k // 2) % 2 == 0
+    subtrack = (0.5 * (1 + SIZE) + rng.normal(0, 0.15 * SIZE) if on_image
+                else float(rng.choice([-1.0, 1.0]) * rng.uniform(0.55, 0.9) * SIZE + 0.5 * (1 + SIZE)))
+    offset = rng.normal(0.0, 60_000.0, 2) / MEAN_RADIUS
+    truth = noaa_pass(direction, SIZE, latitude + offset[0], longitude + offset[1] / np.cos(latitude), subtrack)
+    centre = np.asarray(truth.forward(0.5 * (1 + SIZE), 0.5 * (1 + SIZE)))
+    if abs(centre[0] - latitude - offset[0]) > 1e-3:  # place_pass can converge to a mirror pass far off the swath
+        raise RuntimeError(f"image {k + 1}: the pass was not placed on the scene (subtrack {subtrack:.0f})")
+    return truth
+
+
 def main():
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--images", type=int, default=12)
@@ -89,15 +105,8 @@ def main():
     lat0, lon0 = (float(a) for a in scene.projection.inverse(*scene.centre))
     rows = []
     for k in range(args.images):
-        direction = "south" if k % 2 == 0 else "north"
-        on_image = (k // 2) % 2 == 0
-        subtrack = (0.5 * (1 + SIZE) + rng.normal(0, 0.15 * SIZE) if on_image
-                    else float(rng.choice([-1.0, 1.0]) * rng.uniform(0.55, 0.9) * SIZE + 0.5 * (1 + SIZE)))
-        offset = rng.normal(0.0, 60_000.0, 2) / MEAN_RADIUS
-        truth = noaa_pass(direction, SIZE, lat0 + offset[0], lon0 + offset[1] / np.cos(lat0), subtrack)
-        centre = np.asarray(truth.forward(0.5 * (1 + SIZE), 0.5 * (1 + SIZE)))
-        if abs(centre[0] - lat0 - offset[0]) > 1e-3:  # place_pass can converge to a mirror pass far off the swath
-            raise RuntimeError(f"image {k + 1}: the pass was not placed on the scene (subtrack {subtrack:.0f})")
+        truth = true_pass(k, rng, lat0, lon0)
+        direction = truth.direction
         image = np.asarray(render(scene, truth, float(rng.uniform(0, 10) * DAY)))
         start = rough_start(truth, rng)
         begin = time.perf_counter()

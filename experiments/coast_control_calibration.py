@@ -50,10 +50,10 @@ from seaice_jax.imagery.coast_control import (
     coast_point_covariance,
 )
 from seaice_jax.io.coastline import coastline_of_grid
-from seaice_jax.simulate.satellite import DAY, ice_scene, noaa_pass, render
+from seaice_jax.simulate.satellite import DAY, ice_scene, render
 
 sys.path.insert(0, str(Path(__file__).parent))
-from coast_control import SIZE, check_rms, rough_start  # noqa: E402  (the setup of the coast-control experiment)
+from coast_control import SIZE, check_rms, rough_start, true_pass  # noqa: E402  (the setup of the coast-control experiment)
 
 RESULTS = Path(__file__).with_name("results")
 GLOBAL_ALPHA = 0.05
@@ -67,12 +67,8 @@ def rectified(seed: int, scale: float) -> dict:
     scene = ice_scene(np.random.default_rng(seed))
     coast = coastline_of_grid(scene.land)
     lat0, lon0 = (float(a) for a in scene.projection.inverse(*scene.centre))
-    direction = "south" if seed % 2 == 0 else "north"
-    on_image = (seed // 2) % 2 == 0
-    subtrack = (0.5 * (1 + SIZE) + rng.normal(0, 0.15 * SIZE) if on_image
-                else float(rng.choice([-1.0, 1.0]) * rng.uniform(0.55, 0.9) * SIZE + 0.5 * (1 + SIZE)))
-    offset = rng.normal(0.0, 60_000.0, 2) / MEAN_RADIUS
-    truth = noaa_pass(direction, SIZE, lat0 + offset[0], lon0 + offset[1] / np.cos(lat0), subtrack)
+    truth = true_pass(seed, rng, lat0, lon0)
+    direction = truth.direction
     image = np.asarray(render(scene, truth, float(rng.uniform(0, 10) * DAY)))
     start = rough_start(truth, rng)
     result = coast_control(image, start, coast.contains, match_sigma_scale=scale)
