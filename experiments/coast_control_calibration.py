@@ -31,6 +31,7 @@ Run: ``.venv/bin/python experiments/coast_control_calibration.py [--tune 0 30] [
 """
 
 import argparse
+import dataclasses
 import os
 import pickle
 import sys
@@ -48,6 +49,8 @@ from seaice_jax.imagery.coast_control import (
     CoastErrors,
     coast_control,
     coast_point_covariance,
+    match_coast,
+    predicted_land,
 )
 from seaice_jax.io.coastline import coastline_of_grid
 from seaice_jax.simulate.satellite import DAY, ice_scene, render
@@ -59,17 +62,23 @@ RESULTS = Path(__file__).with_name("results")
 GLOBAL_ALPHA = 0.05
 
 
-def rectified(seed: int, scale: float) -> dict:
-    """One image of ``seed`` rectified from its rough start: σ̂0, degrees of freedom, check-point RMS (pixels),
-    points kept and removed, the kept points' true ground errors ``(n, 2)`` m (north, east) and stated σ
-    ``(n,)`` m, and the final fit (an ``OrbitFit``) and the true model (used by ``experiments/calibration.py``)."""
+def simulated(seed: int):
+    """The image of ``seed``: ``(true model, image, coastline, rng)``, the rng to draw the rough start from."""
     rng = np.random.default_rng([seed, 7])
     scene = ice_scene(np.random.default_rng(seed))
     coast = coastline_of_grid(scene.land)
     lat0, lon0 = (float(a) for a in scene.projection.inverse(*scene.centre))
     truth = true_pass(seed, rng, lat0, lon0)
-    direction = truth.direction
     image = np.asarray(render(scene, truth, float(rng.uniform(0, 10) * DAY)))
+    return truth, image, coast, rng
+
+
+def rectified(seed: int, scale: float) -> dict:
+    """One image of ``seed`` rectified from its rough start: σ̂0, degrees of freedom, check-point RMS (pixels),
+    points kept and removed, the kept points' true ground errors ``(n, 2)`` m (north, east) and stated σ
+    ``(n,)`` m, and the final fit (an ``OrbitFit``) and the true model (used by ``experiments/calibration.py``)."""
+    truth, image, coast, rng = simulated(seed)
+    direction = truth.direction
     start = rough_start(truth, rng)
     result = coast_control(image, start, coast.contains, match_sigma_scale=scale)
     control = result.fit.control
@@ -204,6 +213,55 @@ def summary(rows, label: str) -> list[str]:
             f"{np.sqrt(np.mean(normalised**2)):.2f} | {np.sqrt(np.mean([r['check'] ** 2 for r in rows])):.2f} |"]
 
 
+LEAN_VARIANTS = {"the package's last level": DEFAULT_LEVELS[-1],
+                 "the whole window (no edge band)": dataclasses.replace(DEFAULT_LEVELS[-1], edge=None),
+                 "a band of 8 pixels": dataclasses.replace(DEFAULT_LEVELS[-1], edge=8.0)}
+"""The last level's matcher as the package has it and two variants, for :func:`lean`."""
+
+
+def lean(seeds) -> dict:
+    """The matcher's bias on the ground: each image of ``seeds`` matched at the last level against the prediction
+    of its true model (so every match should be found at its own place), per :data:`LEAN_VARIANTS`; returns per
+    variant ``(means (images, 2), errors (matches, 2))`` m north and east: each image's mean ground error of its
+    matches, and every match's."""
+    out: dict = {name: ([], []) for name in LEAN_VARIANTS}
+    for seed in seeds:
+        truth, image, coast, _ = simulated(seed)
+        prediction = predicted_land(truth, coast.contains)
+        for name, level in LEAN_VARIANTS.items():
+            matches = match_coast(image, prediction, level)
+            found = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.pixel), jnp.asarray(matches.scan)))
+            latitude, longitude = found
+            centre_lat, centre_lon = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.predicted_pixel),
+                                                                           jnp.asarray(matches.predicted_scan)))
+            error = MEAN_RADIUS * np.stack([latitude - centre_lat, (longitude - centre_lon) * np.cos(centre_lat)], 1)
+            out[name][0].append(error.mean(axis=0))
+            out[name][1].append(error)
+        print(f"seed {seed}: " + "; ".join(f"{name} {out[name][0][-1][0]:+.0f} N {out[name][0][-1][1]:+.0f} E m"
+                                           for name in LEAN_VARIANTS), flush=True)
+    return {name: (np.array(means), np.concatenate(errors)) for name, (means, errors) in out.items()}
+
+
+def lean_report(seeds, seconds: float) -> list[str]:
+    result = lean(seeds)
+    load = os.getloadavg()
+    lines = ["# The coastline matcher's lean (experiments/coast_control_calibration.py --lean)", "",
+             f"Seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} images, set up as the calibration's), each matched at the "
+             "last level against the prediction of its true model: a match's ground error is where the true model "
+             "puts the position found less where it puts the window's centre. Mean over images of each image's mean "
+             "error, ± its standard error; RMS per coordinate over all matches.", "",
+             "| matcher | matches an image | north (m) | east (m) | RMS north, east (m) |", "|---|---|---|---|---|"]
+    for name, (means, errors) in result.items():
+        mean, error = means.mean(axis=0), means.std(axis=0, ddof=1) / np.sqrt(len(means))
+        rms = np.sqrt(np.mean(errors**2, axis=0))
+        lines.append(f"| {name} | {len(errors) / len(means):.0f} | {mean[0]:+.1f} ± {error[0]:.1f} | "
+                     f"{mean[1]:+.1f} ± {error[1]:.1f} | {rms[0]:.0f}, {rms[1]:.0f} |")
+    seconds = time.perf_counter() - seconds
+    lines += ["", f"Computed in {seconds:.0f} s (load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} at the "
+              "end, 2 cores).", ""]
+    return lines
+
+
 def crossing(pooled: dict) -> float:
     """The scale where the pooled σ̂0 is 1: linear between the two scales whose σ̂0 are nearest 1 (``pooled``:
     ``{scale: σ̂0}``, two or more)."""
@@ -219,8 +277,16 @@ def main():
     parser.add_argument("--scales", type=float, nargs="+", default=(1.0, MATCH_SIGMA_SCALE),
                         help="match_sigma_scale values the tuning seeds are run with (two or more to tune it; one: "
                              "only κ and the summary; default: 1 and the package's)")
+    parser.add_argument("--lean", type=int, nargs=2, metavar=("FIRST", "END"),
+                        help="only measure the last level's lean on these seeds (coast_matcher_lean.md)")
     args = parser.parse_args()
     begin = time.perf_counter()
+    if args.lean:
+        lines = lean_report(list(range(*args.lean)), begin)
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "coast_matcher_lean.md").write_text("\n".join(lines))
+        print("\n".join(lines))
+        return
     tuning = {scale: collect(range(*args.tune), scale) for scale in args.scales}
     pooled = {scale: pooled_sigma0(rows) for scale, rows in tuning.items()}
     tuned = crossing(pooled) if len(pooled) > 1 else None

@@ -1,5 +1,7 @@
 """Scenes on the real coast, and control points found on it (issue 15, items 3 and 4)."""
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -8,7 +10,14 @@ import pytest
 from seaice_jax.cli import main
 from seaice_jax.errors import SeaiceError
 from seaice_jax.geometry.earth import MEAN_RADIUS
-from seaice_jax.imagery.coast_control import DEFAULT_LEVELS, MatchLevel, coast_control, match_coast, predicted_land
+from seaice_jax.imagery.coast_control import (
+    DEFAULT_LEVELS,
+    MatchLevel,
+    coast_control,
+    match_coast,
+    predicted_land,
+    profile_fit,
+)
 from seaice_jax.io.coastline import coastline, coastline_of_grid
 from seaice_jax.io.sequence import MODEL_KEYS, read_sequence
 from seaice_jax.simulate.satellite import ice_scene, noaa_pass, place_pass, render
@@ -191,3 +200,52 @@ def test_last_level_finds_a_curved_coast_without_landward_bias(island):
     assert abs(float(np.mean(landward))) < 0.05
     assert float(np.sqrt(np.mean(landward**2))) < 0.15
     assert matches.pixel.size >= 20
+
+
+@pytest.mark.parametrize("island", [True, False])
+def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
+    """A coast with a band of fast ice 11 pixels wide, brighter than the land, with pack beyond: fitted over the
+    whole window the step profile's peak leans landward (issue 29: one baseline for fast ice and pack); the last
+    level fits within COAST_EDGE of the predicted coast, where the sea side is the fast ice alone, and finds the
+    true shift."""
+    size, centre, radius = 200, np.array([100.3, 99.6]), 55.0
+    shift = np.array([0.3, -0.2])
+    prediction = _disc(size, centre, radius, island)
+    land = _disc(size, centre + shift, radius, island)
+    fast = _disc(size, centre + shift, radius + 11.0 if island else radius - 11.0, island) - land
+    image = 0.5 * land + 0.86 * fast + 0.45 * (1.0 - land - fast)
+    image = image + np.random.default_rng(6).normal(0.0, 0.05, land.shape)
+
+    def landward(level):
+        matches = match_coast(image, prediction, level)
+        error = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan], 1) - shift
+        outward = np.stack([matches.predicted_pixel - 1.0 - centre[0], matches.predicted_scan - 1.0 - centre[1]], 1)
+        return np.sum(error * outward, axis=1) / np.hypot(*outward.T) * (-1.0 if island else 1.0)
+
+    whole = landward(dataclasses.replace(DEFAULT_LEVELS[-1], edge=None))
+    edge = landward(DEFAULT_LEVELS[-1])
+    assert float(np.mean(whole)) > 0.2
+    assert abs(float(np.mean(edge))) < 0.05
+    assert float(np.sqrt(np.mean(edge**2))) < 0.15
+    assert edge.size >= 20
+
+
+def test_weighted_profile_fit_is_the_weighted_regression():
+    """profile_fit's R² at every shift against a weighted least-squares fit of the window on an intercept and the
+    templates (numpy's lstsq on √w-scaled rows): R² = 1 − Σw(y − ŷ)² / Σw(y − ȳ_w)²."""
+    rng = np.random.default_rng(8)
+    templates = rng.random((2, 12, 10))
+    weight = rng.random((12, 10))
+    region = rng.random((15, 14))
+    surface = profile_fit(region, templates, weight)
+    assert surface.shape == (4, 5)
+    for i in range(4):
+        for j in range(5):
+            y = region[i:i + 12, j:j + 10].ravel()
+            design = np.column_stack([np.ones(y.size), templates.reshape(2, -1).T])
+            root = np.sqrt(weight.ravel())
+            coefficients = np.linalg.lstsq(design * root[:, None], y * root, rcond=None)[0]
+            mean = np.sum(weight.ravel() * y) / weight.sum()
+            expected = 1.0 - np.sum(weight.ravel() * (y - design @ coefficients) ** 2) / np.sum(
+                weight.ravel() * (y - mean) ** 2)
+            assert surface[i, j] == pytest.approx(expected, abs=2e-5)

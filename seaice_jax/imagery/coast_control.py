@@ -14,11 +14,12 @@ of a coarse-to-fine loop:
    Gaussian), which needs no assumption on the sign of the land/sea contrast and takes a band of fast ice along
    the coast in its stride; the best R² wins (the first level searches the whole image's shift first), refined to
    a sub-pixel shift by a quadratic fitted to the 3 x 3 values around the peak. The last level, whose matches
-   are the final control points, fits land against everything else (:data:`COAST_STEP`): the sea bands bias the
-   position landward (:data:`COAST_BANDS`);
+   are the final control points, fits land against sea (:data:`COAST_STEP`: the sea bands bias the position
+   landward, :data:`COAST_BANDS`) only within a few pixels of the predicted coast (:data:`COAST_EDGE`: farther
+   out, pack beyond a band of fast ice pulls it landward too);
 3. proposes a control point per match: the image position where the window was found, the ground position the
    current model gives the window's centre, and σ from the peak: ``C = (1 − ρ²) / (ρ n) (−H_ρ)⁻¹`` pixel² (ρ = √R²
-   at the peak, H_ρ its Hessian per pixel², n the independent pixels of the window), the larger axis of C taken as
+   at the peak, H_ρ its Hessian per pixel², n the independent pixels fitted), the larger axis of C taken as
    an isotropic σ, times :data:`MATCH_SIGMA_SCALE` (calibrated: the fits' σ̂0 is 1 on simulated images), turned into
    metres with the local pixel size;
 4. fits the scan model (:func:`~seaice_jax.adjust.orbit.fit.fit_scan_model`) and removes, one at a time, the point
@@ -63,15 +64,23 @@ coast (0.13-0.16 pixel when the image is the prediction itself, 0.17 on simulate
 level therefore matches with :data:`COAST_STEP`."""
 
 COAST_STEP = (0.0,)
-"""The profile of land against everything else (one bin, d > 0; sea, fast ice and pack are the baseline): no free
-sea bin can take the land's brightness, so the peak does not lean landward as with :data:`COAST_BANDS` (0.00 ±
-0.002 pixel when the image is the prediction, +0.04 ± 0.01 on simulated images with their fast ice and pack, against
-+0.17 with the bands; with the true model's prediction, tuning seeds 61000-61019), and tighter (RMS 0.45 pixel, not
-0.53). It is unbiased only where the sea beside the coast is like the rest of the window's sea: one baseline for
-fast ice and pack leaves the peak lopsided where they differ, a lean still open in issue 29 (the ground bias of
-:data:`COAST_DATUM_SIGMA`). Too little model for the whole image's search (on seeds 61000 and 61001 it found
+"""The profile of land against sea (one bin, d > 0; the rest is the baseline): no free sea bin can take the land's
+brightness, so the peak does not lean landward as with :data:`COAST_BANDS` (0.00 ± 0.002 pixel when the image is
+the prediction, against 0.13-0.16 with the bands). Unbiased only where the sea fitted is one brightness: over a
+whole window fast ice and pack differ and the peak leans landward again, so the last level fits it within
+:data:`COAST_EDGE` of the coast. Too little model for the whole image's search (on seeds 61000 and 61001 it found
 shifts 30-40 pixels off) and fewer matches at the first level, so it is for the last level, which starts within a
 pixel or two."""
+
+
+COAST_EDGE = 3.0
+"""Pixels: the last level fits its profile (:data:`COAST_STEP`) only within this distance of the predicted coast
+(:attr:`MatchLevel.edge`). Over the whole window one baseline stands for fast ice and pack, which differ, and
+the land for its relief: the R² peak leans toward the land, the more the brighter the fast ice (on simulated images
+with the true model's prediction: −37 ± 8 m east, the image's coasts facing west, and a per-point RMS of 620 m;
+issue 29). Within 3 pixels the sea side is the ice next to the coast alone: the lean is gone within its error and
+the RMS is 330 m (``experiments/coast_control_calibration.py --lean``). Wider bands reach the pack beyond a
+band of fast ice (8 pixels: −80 m east on the same images)."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +93,8 @@ class MatchLevel:
         smoothing: σ of the Gaussian applied to image and prediction.
         bands: signed distances (pixels, > 0 on land) bounding the brightness profile's bins
             (:data:`COAST_BANDS`, or :data:`COAST_STEP` for a position without the bands' landward lean).
+        edge: pixels; the profile is fitted only within this distance of the predicted coast (the band's indicator
+            smoothed as the templates; :data:`COAST_EDGE`), ``None``: over the whole window.
     """
 
     search: int
@@ -91,6 +102,7 @@ class MatchLevel:
     step: int
     smoothing: float
     bands: tuple[float, ...] = COAST_BANDS
+    edge: float | None = None
 
 
 MATCH_SIGMA_SCALE = 1.5
@@ -103,9 +115,11 @@ gave σ̂0 0.88: 1.5 gives a pooled σ̂0 of 0.97 with ``CoastErrors(0.80, 0, 0)
 σ 0.93 (RMS per coordinate). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0 does not
 fall as 1/factor."""
 
-DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0), MatchLevel(2, 40, 20, 0.7, COAST_STEP))
+DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0),
+                  MatchLevel(2, 40, 20, 0.7, COAST_STEP, COAST_EDGE))
 """Coarse to fine: after the first level's global shift (``search`` of :func:`coast_control`) the windows look only a
-few pixels around it; the last level's control points are matched with :data:`COAST_STEP`."""
+few pixels around it; the last level's control points are matched with :data:`COAST_STEP` within
+:data:`COAST_EDGE` of the predicted coast."""
 
 
 @dataclass(frozen=True)
@@ -200,31 +214,35 @@ def coast_bands(prediction: np.ndarray, smoothing: float, bands: tuple[float, ..
                      for high, low in zip(edges[:-1], edges[1:], strict=True)])
 
 
-def profile_fit(region: np.ndarray, templates: np.ndarray, minimum_share: float = 0.02) -> np.ndarray:
-    """``(m, n)`` R² of the least-squares fit of the image window at every shift to the templates.
+def profile_fit(region: np.ndarray, templates: np.ndarray, weight: np.ndarray | None = None,
+                minimum_share: float = 0.02) -> np.ndarray:
+    """``(m, n)`` R² of the weighted least-squares fit of the image window at every shift to the templates.
 
     The window of the template's size at offset ``(i, j)`` in ``region`` ``(m + h − 1, n + w − 1)`` is regressed on
     an intercept and the templates ``(k, h, w)`` (the profile bins: brightness an unknown function of the distance
-    to the coast, whatever its sign or shape); R² = bᵀ G⁻¹ b / S with b the templates' covariances with the window,
-    G their Gram matrix and S the window's sum of squares about its mean. Templates covering less than
-    ``minimum_share`` of the window (or not independent) are left out; none left: zeros."""
+    to the coast, whatever its sign or shape), each pixel weighted by ``weight`` ``(h, w)`` (which moves with the
+    templates; default 1 everywhere); R² = bᵀ G⁻¹ b / S with b the weighted covariances of the templates with the
+    window, G their weighted Gram matrix and S the window's weighted sum of squares about its weighted mean.
+    Templates covering less than ``minimum_share`` of the weight (or not independent) are left out; none left:
+    zeros."""
     height, width = templates.shape[1:]
-    count = height * width
-    share = templates.reshape(len(templates), -1).mean(axis=1)
+    weight = np.ones((height, width)) if weight is None else np.asarray(weight, float)
+    count = float(weight.sum())
+    share = np.einsum("kij,ij->k", templates.astype(float), weight) / count
     centred = templates[share > minimum_share] - share[share > minimum_share, None, None]
-    centred = centred.astype(np.float32)
     rows, columns = region.shape[0] - height + 1, region.shape[1] - width + 1
     if len(centred) == 0:
         return np.zeros((rows, columns))
-    gram = np.einsum("kij,lij->kl", centred.astype(float), centred.astype(float))
+    gram = np.einsum("kij,lij,ij->kl", centred, centred, weight)
     if np.linalg.cond(gram) > 1e8:
         return np.zeros((rows, columns))
     region = region.astype(np.float32)
-    ones = np.ones((height, width), np.float32)
-    total = cv2.matchTemplate(region, ones, cv2.TM_CCORR).astype(float)
-    squares = cv2.matchTemplate(region * region, ones, cv2.TM_CCORR).astype(float)
+    weight32 = weight.astype(np.float32)
+    total = cv2.matchTemplate(region, weight32, cv2.TM_CCORR).astype(float)
+    squares = cv2.matchTemplate(region * region, weight32, cv2.TM_CCORR).astype(float)
     spread = squares - total**2 / count
-    covariance = np.stack([cv2.matchTemplate(region, t, cv2.TM_CCORR).astype(float) for t in centred])
+    covariance = np.stack([cv2.matchTemplate(region, (t * weight).astype(np.float32), cv2.TM_CCORR).astype(float)
+                           for t in centred])
     explained = np.einsum("kij,kl,lij->ij", covariance, np.linalg.inv(gram), covariance)
     return np.where(spread > 1e-9 * count, explained / np.maximum(spread, 1e-300), 0.0)
 
@@ -270,7 +288,8 @@ def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, ex
     bands = coast_bands(prediction, level.smoothing, level.bands)
     half, search = level.window // 2, level.search
     shift_column, shift_row = (int(round(v)) for v in expected)
-    independent = level.window**2 / max(1.0, 4 * np.pi * level.smoothing**2)
+    weight = (np.ones(prediction.shape) if level.edge is None else
+              _smooth(np.abs(signed_distance(prediction > 0.5)) <= level.edge, level.smoothing).astype(float))
     found = []
     for row in range(half, rows - half, level.step):
         for column in range(half, columns - half, level.step):
@@ -282,7 +301,8 @@ def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, ex
             if top < 0 or left < 0 or bottom > rows or right > columns:
                 continue
             templates = bands[:, row - half:row + half, column - half:column + half]
-            surface = profile_fit(smooth_image[top:bottom, left:right], templates)
+            fitted = weight[row - half:row + half, column - half:column + half]
+            surface = profile_fit(smooth_image[top:bottom, left:right], templates, fitted)
             r, c = np.unravel_index(int(np.argmax(surface)), surface.shape)
             if not (0 < r < surface.shape[0] - 1 and 0 < c < surface.shape[1] - 1):
                 continue
@@ -292,6 +312,7 @@ def match_coast(image: np.ndarray, prediction: np.ndarray, level: MatchLevel, ex
             offset, fit, hessian = peak
             rho = float(np.sqrt(min(fit, 0.998)))
             # R² = ρ²: the curvature of ρ is half that of R² over ρ
+            independent = float(fitted.sum()) / max(1.0, 4 * np.pi * level.smoothing**2)
             covariance = (1 - rho**2) / (rho * independent) * np.linalg.inv(-hessian / (2 * rho))
             sigma = sigma_scale * float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
             centre_pixel, centre_scan = column + 0.5, row + 0.5  # 1-based: the even window's centre is a pixel edge
