@@ -15,7 +15,7 @@ own with ``--rows``):
   with the points' correlated errors, ``CoastErrors``, in its covariance); σ̂0 and the fit's global test (its
   degrees of freedom for the matches' kurtosis; the plain χ² test in the note) of the final fits (after data
   snooping: the w-test removals are reported, but they remove real mismatches too, so they are not a false-alarm
-  rate). The coast model's constants were tuned on seeds 61000-61079.
+  rate). The coast model's constants were tuned on seeds 61000-61199.
 * **block**, **block_strip** — radar blocks of ``experiments/block_statistics.py`` (its :func:`block_statistics`,
   default ``BlockOptions`` of the flight and the strip navigation scope): stated: the adjusted stations', all
   points' and drift vectors' covariance against the truth; σ̂0, global test, the w-test alarms per testable

@@ -26,8 +26,10 @@ its own fresh seeds).
 Writes experiments/results/coast_control_calibration.md; each image's summary is cached
 (``experiments/results/.cache/coast_tuning/<scale>/<seed>.pkl``), so a run resumes.
 Run: ``.venv/bin/python experiments/coast_control_calibration.py [--tune 0 30] [--check 1000 1030] [--scales 1
-1.7]`` (about 6-10 s an image on one core; the default 1.7 of an earlier matcher was found with ``--scales 1 1.3
-1.6``: pooled σ̂0 1.30, 1.14, 1.03; κ with ``--tune 61000 61200 --check 51060 51060 --scales 1.5``).
+1.7]`` (about 10-13 s an image on one core; the package's constants: ``--tune 61000 61200 --check 0 0 --scales
+0.88``; ``--lean 61000 61100``: the last level's bias against the true model's prediction, per matcher variant,
+``coast_control_calibration.md``'s companion ``coast_matcher_lean.md``). Run two processes on two cores with
+``OMP_NUM_THREADS=1``: the maximum likelihood takes seconds then, minutes when the linear algebra's threads contend.
 """
 
 import argparse
@@ -40,6 +42,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from seaice_jax import MEAN_RADIUS
 from seaice_jax.adjust.engine.quality import global_test
@@ -148,7 +151,7 @@ def error_model(rows) -> dict:
     """The coastline points' correlated-error model by maximum likelihood (the package's
     ``MATCH_OVERLAP_CORRELATION`` and ``COAST_DATUM_SIGMA``; the datum gradient left at 0): the kept points' true
     errors, north and east alike and independent, N(0, Σ(c, σ_c)) with Σ of :func:`coast_point_covariance` (windows
-    of the last level), over all images, on a grid of c (0.70-0.98, steps of 0.005) and σ_c (0-60 m, steps of 5 m).
+    of the last level), over all images, on a grid of c (0.70-0.98, steps of 0.005) and σ_c (0-60 m, steps of 1 m).
     Returns ``{"overlap_correlation": (c, (low, high)), "datum_sigma": (σ_c, (low, high))}``, each with its
     profile-likelihood 90 % interval (a drop of 1.35)."""
     window = DEFAULT_LEVELS[-1].window
@@ -157,14 +160,19 @@ def error_model(rows) -> dict:
         overlap = coast_point_covariance(r["sigma"], r["pixel"], r["scan"], r["latitude"], r["longitude"], window,
                                          CoastErrors(1.0, 0.0, 0.0))  # S K S
         parts.append((np.diag(np.diag(overlap)), overlap, r["error"]))
-    correlations, shifts = np.linspace(0.70, 0.98, 57), np.linspace(0.0, 60.0, 13)
+    correlations, shifts = np.linspace(0.70, 0.98, 57), np.linspace(0.0, 60.0, 61)
     values = np.zeros((correlations.size, shifts.size))
     for i, c in enumerate(correlations):
-        for j, sigma_c in enumerate(shifts):
-            for own, overlap, error in parts:
-                factor = np.linalg.cholesky((1.0 - c) * own + c * overlap + sigma_c**2)
-                white = np.linalg.solve(factor, error)
-                values[i, j] -= 0.5 * np.sum(white**2) + error.shape[1] * np.sum(np.log(np.diag(factor)))
+        for own, overlap, error in parts:
+            # Σ = A + σ_c² 1 1ᵀ: one Cholesky factor L of A per c, the shift by the determinant lemma and
+            # Sherman-Morrison (u = L⁻¹1, z = L⁻¹e): eᵀΣ⁻¹e = |z|² − σ_c² (uᵀz)² / (1 + σ_c² |u|²)
+            factor = np.linalg.cholesky((1.0 - c) * own + c * overlap)
+            solved = solve_triangular(factor, np.column_stack([np.ones(len(error)), error]), lower=True)
+            ones, white = solved[:, 0], solved[:, 1:]
+            lift = 1.0 + shifts**2 * (ones @ ones)
+            quadratic = np.sum(white**2) - shifts**2 * np.sum((ones @ white) ** 2) / lift
+            log_det = 2.0 * np.sum(np.log(np.diag(factor))) + np.log(lift)
+            values[i] -= 0.5 * quadratic + 0.5 * error.shape[1] * log_det
     best = np.unravel_index(int(np.argmax(values)), values.shape)
 
     def profile(grid, axis):

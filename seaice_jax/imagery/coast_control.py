@@ -105,15 +105,15 @@ class MatchLevel:
     edge: float | None = None
 
 
-MATCH_SIGMA_SCALE = 1.5
+MATCH_SIGMA_SCALE = 0.88
 """Factor on the σ from the correlation peak, calibrated by Monte Carlo so that the final fits' σ̂0 is 1
-(``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed). First 1.7 (pooled σ̂0 1.30
-at factor 1 and 0.98 at 1.7 on the tuning seeds 0-29, 1.01 at 1.7 on the fresh seeds 1000-1029); since the last
-level matches with :data:`COAST_STEP` (issue 29) the matches are tighter (true error RMS 581 m, not 727 m) and 1.7
-gave σ̂0 0.88: 1.5 gives a pooled σ̂0 of 0.97 with ``CoastErrors(0.80, 0, 0)`` and 0.99 with the calibrated
-:class:`CoastErrors` on the tuning seeds 61000-61079 (1.45: 1.02), the kept points' true error over their stated
-σ 0.93 (RMS per coordinate). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0 does not
-fall as 1/factor."""
+(``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed): pooled σ̂0 0.999
+(0.994-1.005) on the 200 tuning images 61000-61199 with the calibrated :class:`CoastErrors`. Since the last level
+fits within :data:`COAST_EDGE` of the coast (issue 29) the peak's σ overstates the matches' error (pooled σ̂0 0.60
+at 1.5); 0.88 was interpolated between refits of the kept points of a run at 0.85 with the present error model
+(σ̂0 1.027 at 0.85, 0.977 at 0.90) and confirmed by the run above. Before: 1.5 (whole windows at the last level),
+1.7 (the banded profile). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0 does not fall
+as 1/factor."""
 
 DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0),
                   MatchLevel(2, 40, 20, 0.7, COAST_STEP, COAST_EDGE))
@@ -348,44 +348,42 @@ so that the fits of every level and image share a few compiled shapes."""
 _NO_WEIGHT = 1e12
 """σ (m) of a padding or rejected point: no weight in the fit, no redundancy, w = 0."""
 
-MATCH_OVERLAP_CORRELATION = 0.86
+MATCH_OVERLAP_CORRELATION = 0.90
 """c (dimensionless): the correlation of two coastline matches' errors (per ground axis) is c times the share of
 pixels their windows have in common (:func:`window_overlap`). Maximum likelihood on the true errors of the points
-kept by :func:`coast_control` on the tuning seeds 61000-61079 (80 images of
-``experiments/coast_control_calibration.py``, 6590 points; jointly with the datum terms): 0.86 (0.81-0.91 at a
-likelihood drop of 11-18). Before the last level matched with :data:`COAST_STEP`: 0.74. Reproduced on the 200 tuning
-images 61000-61199 by ``experiments/coast_control_calibration.py``: 0.86 (0.86-0.88, profile likelihood)."""
+kept by :func:`coast_control` on the 200 tuning images 61000-61199 (``experiments/coast_control_calibration.py``,
+``error_model`` there; jointly with :data:`COAST_DATUM_SIGMA`): 0.90 (0.90-0.905, profile likelihood), with
+the last level fitting within :data:`COAST_EDGE` of the coast (issue 29; 0.86 when it fitted whole windows, 0.74
+with the banded profile)."""
 
-COAST_DATUM_SIGMA = 0.0
-"""σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share,
-where the coast the image shows and the coastline database (GSHHG, from which the prediction is made) differ.
-Maximum likelihood on the tuning seeds 61000-61079 (see :data:`MATCH_OVERLAP_CORRELATION`): 0 — the simulated
-images' coast is the GSHHG coast (the raster's zero line within 10 m of the polygon on average). The 84 m
-estimated before (issue 29; a shift common to all images of +17 north and −92 m east, the matched coast ~120 m
-landward of the database's) was the banded profile's landward bias (:data:`COAST_BANDS`); with :data:`COAST_STEP`
-at the last level the points' weighted mean error per image is +8 ± 6 m north, −36 ± 7 m east and +13 m landward.
-Again 0 (0-20 m) on 200 tuning images 61000-61199, jointly with the overlap correlation
-(``experiments/coast_control_calibration.py``), where that error is +13 ± 4 m north, −29 ± 4 m east in every
-imaging geometry: a bias all images share on the ground (what the last level still puts landward on rendered
-images), which no random shift per image describes; it makes the rectified model's error at check pixels 1.12 times
-its stated σ (issue 29, open). On real images, where database and imaged coast do differ, pass a
-:class:`CoastErrors` with it."""
+COAST_DATUM_SIGMA = 19.0
+"""σ_c (m, per ground axis, north and east): the shift that all of one image's coastline control points share:
+where the coast the image shows and the coastline database (GSHHG, from which the prediction is made) differ, and
+what the matcher errs alike along one image's coast. Maximum likelihood on the tuning images 61000-61199 (see
+:data:`MATCH_OVERLAP_CORRELATION`): 19 m (16-22 m) — on simulated images, whose coast is the GSHHG coast (the
+raster's zero line within 10 m of the polygon on average), the matcher's part alone; the kept points' weighted mean
+error per image there is +4 ± 2 m north, +8 ± 2 m east (alike in the four imaging geometries), scattered by 33 m
+from image to image. With whole windows at the last level the matcher leaned landward, +13 ± 4 m north, −29 ± 4 m
+east, a bias no random shift describes (the rectified model's error at check pixels was 1.12 times its stated σ,
+issue 29); with the banded profile ~120 m. On real images, where database and imaged coast differ, pass a
+:class:`CoastErrors` with the larger σ_c."""
 
 COAST_DATUM_GRADIENT_SIGMA = 0.0
 """σ_g (m per m, dimensionless): σ of each of the four gradients (north and east error along north and east) of
 the error field an image's coastline points share, about their centroid. Maximum likelihood on the tuning seeds
-61000-61079: 0 (see :data:`COAST_DATUM_SIGMA`; 0.42e-3 before the last level matched with :data:`COAST_STEP`, the
-landward bias narrowing sounds and shrinking islands)."""
+61000-61079 when the last level fitted whole windows: 0 (0.42e-3 with the banded profile, its landward bias
+narrowing sounds and shrinking islands); not estimated again since (``error_model`` of
+``experiments/coast_control_calibration.py`` leaves it at 0)."""
 
-MATCH_ERROR_KURTOSIS = 7.9
+MATCH_ERROR_KURTOSIS = 3.85
 """κ (effective): σ̂0² of a coastline-controlled fit varies (κ − 1)/r about 1, not 2/r, so its global test uses
 r' = 2r/(κ − 1) degrees of freedom (:attr:`~seaice_jax.adjust.orbit.fit.OrbitFit.error_kurtosis`): the points'
 σ is too small or too large by a factor common to an image, and the matches the w-test keeps include moderately
-wrong ones. Set where that test rejects 5 % of the fits of the tuning seeds 61000-61199 (200 fits with
-:func:`coast_point_covariance` and the calibrated constants; ``experiments/coast_control_calibration.py``): the
-95 % quantile of each fit's critical κ, 7.9 (90 % over images 5.3-8.3). The moment estimate 1 + mean r (σ̂0² − 1)²
-is 6.6 (5.5-7.7) there, dominated by the few fits far out (one at σ̂0² 1.8 on 61000-61079, which gave 6.9 from 80
-fits); it made the test reject 0/60 fresh fits (issue 29)."""
+wrong ones. Set where that test rejects 5 % of the fits of the tuning images 61000-61199 (200 fits with the
+calibrated constants; ``experiments/coast_control_calibration.py``): the 95 % quantile of each fit's critical κ,
+3.85 (90 % over images 3.47-4.32); the moment estimate 1 + mean r (σ̂0² − 1)² agrees, 3.89 (3.45-4.36): the fits
+are nearly χ² now. With whole windows at the last level (issue 29) it was 7.9, its level resting on a heavy tail of
+σ̂0² that a fresh set of images did not share (0.8 % rejected)."""
 
 
 @dataclass(frozen=True)
