@@ -82,7 +82,7 @@ def true_pass(k: int, rng, latitude: float, longitude: float):
     """The true scan model of image ``k``: a south pass for even ``k``, north for odd; the subtrack on the image for
     ``k`` mod 4 in (0, 1), off it otherwise; centred 60 km (σ) from the scene's centre ``(latitude, longitude)``
     radians (draws from ``rng``). ``place_pass`` can converge to a mirror pass far off the swath for a subtrack far
-    off the image (seeds 51283 and 51383 of 240): then the subtrack and centre are drawn again (a pass that is
+    off the image (seeds 51282 and 51382 of 240): then the subtrack and centre are drawn again (a pass that is
     placed keeps its first draws)."""
     direction = "south" if k % 2 == 0 else "north"
     on_image = (k // 2) % 2 == 0
