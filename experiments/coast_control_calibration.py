@@ -40,9 +40,11 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import jax.numpy as jnp
 import numpy as np
 from scipy.linalg import solve_triangular
+from scipy.ndimage import map_coordinates
 
 from seaice_jax import MEAN_RADIUS
 from seaice_jax.adjust.engine.quality import global_test
@@ -50,10 +52,12 @@ from seaice_jax.imagery.coast_control import (
     DEFAULT_LEVELS,
     MATCH_SIGMA_SCALE,
     CoastErrors,
+    centroid_offsets,
     coast_control,
     coast_point_covariance,
     match_coast,
     predicted_land,
+    signed_distance,
 )
 from seaice_jax.io.coastline import coastline_of_grid
 from seaice_jax.simulate.satellite import DAY, ice_scene, render
@@ -149,38 +153,47 @@ def effective_kurtosis(rows, alpha: float = GLOBAL_ALPHA) -> dict:
 
 def error_model(rows) -> dict:
     """The coastline points' correlated-error model by maximum likelihood (the package's
-    ``MATCH_OVERLAP_CORRELATION`` and ``COAST_DATUM_SIGMA``; the datum gradient left at 0): the kept points' true
-    errors, north and east alike and independent, N(0, Σ(c, σ_c)) with Σ of :func:`coast_point_covariance` (windows
-    of the last level), over all images, on a grid of c (0.70-0.98, steps of 0.005) and σ_c (0-60 m, steps of 1 m).
-    Returns ``{"overlap_correlation": (c, (low, high)), "datum_sigma": (σ_c, (low, high))}``, each with its
+    ``MATCH_OVERLAP_CORRELATION``, ``COAST_DATUM_SIGMA`` and ``COAST_DATUM_GRADIENT_SIGMA``): the kept points' true
+    errors, north and east alike and independent, N(0, Σ(c, σ_c, σ_g)) with Σ of :func:`coast_point_covariance`
+    (windows of the last level), over all images, on a grid of c (0.70-0.98, steps of 0.005), σ_c (0-60 m, steps
+    of 1 m) and σ_g (0-0.6 m per km, steps of 0.025). Returns ``{"overlap_correlation": (c, (low, high)),
+    "datum_sigma": (σ_c, (low, high)), "datum_gradient_sigma": (σ_g, (low, high))}``, each with its
     profile-likelihood 90 % interval (a drop of 1.35)."""
     window = DEFAULT_LEVELS[-1].window
     parts = []
     for r in rows:
         overlap = coast_point_covariance(r["sigma"], r["pixel"], r["scan"], r["latitude"], r["longitude"], window,
                                          CoastErrors(1.0, 0.0, 0.0))  # S K S
-        parts.append((np.diag(np.diag(overlap)), overlap, r["error"]))
-    correlations, shifts = np.linspace(0.70, 0.98, 57), np.linspace(0.0, 60.0, 61)
-    values = np.zeros((correlations.size, shifts.size))
+        offsets = centroid_offsets(r["latitude"], r["longitude"], np.ones(len(r["sigma"]), bool))
+        parts.append((np.diag(np.diag(overlap)), overlap, np.column_stack([np.ones(len(offsets)), offsets]),
+                      r["error"]))
+    correlations, shifts, gradients = np.linspace(0.70, 0.98, 57), np.linspace(0.0, 60.0, 61), np.linspace(0, 6e-4, 25)
+    scales = np.stack(np.broadcast_arrays(shifts[:, None], gradients[None], gradients[None]), -1)  # (σ_c, σ_g, σ_g)
+    values = np.zeros((correlations.size, shifts.size, gradients.size))
     for i, c in enumerate(correlations):
-        for own, overlap, error in parts:
-            # Σ = A + σ_c² 1 1ᵀ: one Cholesky factor L of A per c, the shift by the determinant lemma and
-            # Sherman-Morrison (u = L⁻¹1, z = L⁻¹e): eᵀΣ⁻¹e = |z|² − σ_c² (uᵀz)² / (1 + σ_c² |u|²)
+        for own, overlap, basis, error in parts:
+            # Σ = A + U D Uᵀ (U = [1, X], D = diag(σ_c², σ_g², σ_g²)): one Cholesky factor L of A per c, the shared
+            # field by Woodbury and the determinant lemma (V = L⁻¹U, z = L⁻¹e, M = I + D½VᵀVD½, b = D½Vᵀz):
+            # eᵀΣ⁻¹e = |z|² − bᵀM⁻¹b, log det Σ = log det A + log det M
             factor = np.linalg.cholesky((1.0 - c) * own + c * overlap)
-            solved = solve_triangular(factor, np.column_stack([np.ones(len(error)), error]), lower=True)
-            ones, white = solved[:, 0], solved[:, 1:]
-            lift = 1.0 + shifts**2 * (ones @ ones)
-            quadratic = np.sum(white**2) - shifts**2 * np.sum((ones @ white) ** 2) / lift
-            log_det = 2.0 * np.sum(np.log(np.diag(factor))) + np.log(lift)
+            solved = solve_triangular(factor, np.column_stack([basis, error]), lower=True)
+            v, white = solved[:, :3], solved[:, 3:]
+            gram, projected = v.T @ v, v.T @ white  # (3, 3), (3, axes)
+            middle = np.eye(3) + scales[..., :, None] * gram * scales[..., None, :]
+            b = scales[..., :, None] * projected
+            quadratic = np.sum(white**2) - np.einsum("...ka,...ka->...", b, np.linalg.solve(middle, b))
+            log_det = 2.0 * np.sum(np.log(np.diag(factor))) + np.linalg.slogdet(middle)[1]
             values[i] -= 0.5 * quadratic + 0.5 * error.shape[1] * log_det
     best = np.unravel_index(int(np.argmax(values)), values.shape)
 
     def profile(grid, axis):
-        inside = grid[values.max(axis=axis) >= values.max() - 1.35]
+        others = tuple(k for k in range(3) if k != axis)
+        inside = grid[values.max(axis=others) >= values.max() - 1.35]
         return float(inside.min()), float(inside.max())
 
-    return {"overlap_correlation": (float(correlations[best[0]]), profile(correlations, 1)),
-            "datum_sigma": (float(shifts[best[1]]), profile(shifts, 0))}
+    return {"overlap_correlation": (float(correlations[best[0]]), profile(correlations, 0)),
+            "datum_sigma": (float(shifts[best[1]]), profile(shifts, 1)),
+            "datum_gradient_sigma": (float(gradients[best[2]]), profile(gradients, 2))}
 
 
 def shared_error(rows) -> list[str]:
@@ -201,6 +214,24 @@ def shared_error(rows) -> list[str]:
         lines.append(f"| {label} | {len(values)} | {mean[0]:+.0f} ± {error[0]:.0f} | {mean[1]:+.0f} ± {error[1]:.0f} | "
                      f"{values.std(axis=0, ddof=1).mean():.0f} |")
     return lines
+
+
+def shared_field(rows) -> list[str]:
+    """The kept points' errors per image fitted (weights 1/σ²) by an affine field on the ground — a shift and the
+    four gradients about the points' centroid —; per term the mean over images ± its standard error and the
+    scatter: a mean beyond its error is a bias all images share (what a random shared field, ``COAST_DATUM_SIGMA``
+    and ``COAST_DATUM_GRADIENT_SIGMA``, does not describe)."""
+    terms = []
+    for r in rows:
+        offsets = centroid_offsets(r["latitude"], r["longitude"], np.ones(len(r["sigma"]), bool))
+        design = np.column_stack([np.ones(len(offsets)), offsets / 1e5]) / r["sigma"][:, None]
+        terms.append(np.linalg.lstsq(design, r["error"] / r["sigma"][:, None], rcond=None)[0])
+    terms = np.array(terms)  # (images, term, axis of the error)
+    mean, error = terms.mean(axis=0), terms.std(axis=0, ddof=1) / np.sqrt(len(terms))
+    scatter = terms.std(axis=0, ddof=1)
+    return [f"| {label} | {mean[k, 0]:+.1f} ± {error[k, 0]:.1f} ({scatter[k, 0]:.0f}) | "
+            f"{mean[k, 1]:+.1f} ± {error[k, 1]:.1f} ({scatter[k, 1]:.0f}) |"
+            for k, label in enumerate(("shift (m)", "per 100 km north (m)", "per 100 km east (m)"))]
 
 
 def pooled_sigma0(rows) -> float:
@@ -230,14 +261,22 @@ LEAN_VARIANTS = {"the package's last level": DEFAULT_LEVELS[-1],
 def lean(seeds) -> dict:
     """The matcher's bias on the ground: each image of ``seeds`` matched at the last level against the prediction
     of its true model (so every match should be found at its own place), per :data:`LEAN_VARIANTS`; returns per
-    variant ``(means (images, 2), errors (matches, 2))`` m north and east: each image's mean ground error of its
-    matches, and every match's."""
-    out: dict = {name: ([], []) for name in LEAN_VARIANTS}
+    variant ``(means (images, 2), errors (matches, 2), landward (images,))``: each image's mean ground error of its
+    matches (m north and east), every match's, and each image's mean error along the coast's normal toward the land
+    (pixels; the normal from the gradient of the prediction's signed distance, smoothed by 2 pixels, at the
+    window's centre)."""
+    out: dict = {name: ([], [], []) for name in LEAN_VARIANTS}
     for seed in seeds:
         truth, image, coast, _ = simulated(seed)
         prediction = predicted_land(truth, coast.contains)
+        gradient = np.gradient(cv2.GaussianBlur(signed_distance(prediction > 0.5).astype(np.float32), (0, 0), 2.0))
         for name, level in LEAN_VARIANTS.items():
             matches = match_coast(image, prediction, level)
+            at = [matches.predicted_scan - 1.0, matches.predicted_pixel - 1.0]  # row, column
+            normal = np.stack([map_coordinates(gradient[1], at, order=1), map_coordinates(gradient[0], at, order=1)])
+            normal /= np.maximum(np.hypot(*normal), 1e-12)  # (pixel, scan), toward the land
+            shift = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan])
+            out[name][2].append(float(np.mean(np.sum(shift * normal, axis=0))))
             found = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.pixel), jnp.asarray(matches.scan)))
             latitude, longitude = found
             centre_lat, centre_lon = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.predicted_pixel),
@@ -247,7 +286,8 @@ def lean(seeds) -> dict:
             out[name][1].append(error)
         print(f"seed {seed}: " + "; ".join(f"{name} {out[name][0][-1][0]:+.0f} N {out[name][0][-1][1]:+.0f} E m"
                                            for name in LEAN_VARIANTS), flush=True)
-    return {name: (np.array(means), np.concatenate(errors)) for name, (means, errors) in out.items()}
+    return {name: (np.array(means), np.concatenate(errors), np.array(landward))
+            for name, (means, errors, landward) in out.items()}
 
 
 def lean_report(seeds, seconds: float) -> list[str]:
@@ -257,13 +297,16 @@ def lean_report(seeds, seconds: float) -> list[str]:
              f"Seeds {seeds[0]}-{seeds[-1]} ({len(seeds)} images, set up as the calibration's), each matched at the "
              "last level against the prediction of its true model: a match's ground error is where the true model "
              "puts the position found less where it puts the window's centre. Mean over images of each image's mean "
-             "error, ± its standard error; RMS per coordinate over all matches.", "",
-             "| matcher | matches an image | north (m) | east (m) | RMS north, east (m) |", "|---|---|---|---|---|"]
-    for name, (means, errors) in result.items():
+             "error, ± its standard error; RMS per coordinate over all matches; toward the land: each image's mean "
+             "error along the coast's normal (pixels of about 1.2 km), mean over images ± its standard error.", "",
+             "| matcher | matches an image | north (m) | east (m) | RMS north, east (m) | toward the land (pixel) |",
+             "|---|---|---|---|---|---|"]
+    for name, (means, errors, landward) in result.items():
         mean, error = means.mean(axis=0), means.std(axis=0, ddof=1) / np.sqrt(len(means))
         rms = np.sqrt(np.mean(errors**2, axis=0))
         lines.append(f"| {name} | {len(errors) / len(means):.0f} | {mean[0]:+.1f} ± {error[0]:.1f} | "
-                     f"{mean[1]:+.1f} ± {error[1]:.1f} | {rms[0]:.0f}, {rms[1]:.0f} |")
+                     f"{mean[1]:+.1f} ± {error[1]:.1f} | {rms[0]:.0f}, {rms[1]:.0f} | {landward.mean():+.3f} ± "
+                     f"{landward.std(ddof=1) / np.sqrt(len(landward)):.3f} |")
     seconds = time.perf_counter() - seconds
     lines += ["", f"Computed in {seconds:.0f} s (load average {load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} at the "
               "end, 2 cores).", ""]
@@ -331,18 +374,25 @@ def main():
                     f"{k['moments'][1][1]:.2f})" for scale, k in kurtosis.items())
         + ".",
         "",
-        "The points' correlated-error model by maximum likelihood (`CoastErrors`; the datum gradient 0; 90 % by the "
-        "profile likelihood): "
-        + "; ".join(f"at scale {scale:g}: overlap correlation c {m['overlap_correlation'][0]:.2f} "
-                    f"({m['overlap_correlation'][1][0]:.2f}-{m['overlap_correlation'][1][1]:.2f}; the package's "
+        "The points' correlated-error model by maximum likelihood (`CoastErrors`; 90 % by the profile likelihood): "
+        + "; ".join(f"at scale {scale:g}: overlap correlation c {m['overlap_correlation'][0]:.3f} "
+                    f"({m['overlap_correlation'][1][0]:.3f}-{m['overlap_correlation'][1][1]:.3f}; the package's "
                     f"{CoastErrors().overlap_correlation:g}), shared shift σ_c {m['datum_sigma'][0]:.0f} m "
                     f"({m['datum_sigma'][1][0]:.0f}-{m['datum_sigma'][1][1]:.0f} m; the package's "
-                    f"{CoastErrors().datum_sigma:g} m)" for scale, m in model.items())
+                    f"{CoastErrors().datum_sigma:g} m), shared gradients σ_g "
+                    f"{1e3 * m['datum_gradient_sigma'][0]:.3f} m per km ({1e3 * m['datum_gradient_sigma'][1][0]:.3f}-"
+                    f"{1e3 * m['datum_gradient_sigma'][1][1]:.3f}; the package's "
+                    f"{1e3 * CoastErrors().datum_gradient_sigma:g})" for scale, m in model.items())
         + ".",
         "",
         "The kept points' weighted mean error per image (m; the tuning seeds):", "",
         "| pass | images | north | east | scatter per image (RMS of the two axes) |", "|---|---|---|---|---|",
         *[line for rows in tuning.values() for line in shared_error(rows)],
+        "",
+        "The same errors as an affine field per image (weights 1/σ²; mean over images ± its standard error, the "
+        "scatter over images in brackets):", "",
+        "| term | north error | east error |", "|---|---|---|",
+        *[line for rows in tuning.values() for line in shared_field(rows)],
         "",
         *header,
         *[row for scale, rows in tuning.items()

@@ -422,6 +422,17 @@ def window_overlap(pixel, scan, window: float) -> np.ndarray:
     return along * across
 
 
+def centroid_offsets(latitude, longitude, included, radius: float = MEAN_RADIUS) -> np.ndarray:
+    """``(n, 2)`` m: north and east offsets of points at ``latitude``, ``longitude`` ``(n,)`` radians from the
+    centroid of those ``included`` ``(n,)`` bool (longitudes unwrapped next to the first point; none included: from
+    latitude and longitude 0), on a sphere of ``radius`` m."""
+    latitude, longitude, included = np.asarray(latitude, float), np.asarray(longitude, float), np.asarray(included)
+    east = np.angle(np.exp(1j * (longitude - longitude[0]))) if latitude.size else longitude
+    centre_latitude = float(np.mean(latitude[included])) if included.any() else 0.0
+    centre_east = float(np.mean(east[included])) if included.any() else 0.0
+    return radius * np.stack([latitude - centre_latitude, np.cos(centre_latitude) * (east - centre_east)], 1)
+
+
 def coast_point_covariance(sigma, pixel, scan, latitude, longitude, window: float,
                            errors: CoastErrors = CoastErrors(), shared=None, radius: float = MEAN_RADIUS) -> np.ndarray:
     """``(n, n)`` m²: the covariance of control points' errors along one ground axis (north or east alike; the axes
@@ -445,12 +456,7 @@ def coast_point_covariance(sigma, pixel, scan, latitude, longitude, window: floa
     both = np.outer(shared, shared)
     c = errors.overlap_correlation
     correlation = np.where(both, (1.0 - c) * np.eye(count) + c * window_overlap(pixel, scan, window), np.eye(count))
-    latitude, longitude = np.asarray(latitude, float), np.asarray(longitude, float)
-    centred = shared & (sigma < _WEIGHTLESS)  # the centroid of the weighted coastline points
-    east = np.angle(np.exp(1j * (longitude - longitude[0]))) if count else longitude  # unwrapped next to the first
-    centre_latitude = float(np.mean(latitude[centred])) if centred.any() else 0.0
-    centre_east = float(np.mean(east[centred])) if centred.any() else 0.0
-    offsets = radius * np.stack([latitude - centre_latitude, np.cos(centre_latitude) * (east - centre_east)], 1)
+    offsets = centroid_offsets(latitude, longitude, shared & (sigma < _WEIGHTLESS), radius)
     field = errors.datum_sigma**2 + errors.datum_gradient_sigma**2 * (offsets @ offsets.T)
     return sigma[:, None] * correlation * sigma[None] + np.where(both, field, 0.0)
 
