@@ -105,7 +105,9 @@ def rectified(seed: int, scale: float) -> dict:
 
 
 CACHE = RESULTS / ".cache" / "coast_tuning"
-"""Each image's summary (without the fit) per scale and seed, ``<scale>/<seed>.pkl``: a long run can be resumed."""
+"""Each image's summary (without the fit) per scale and seed, ``<scale>/<seed>.pkl``: a long run can be resumed.
+Keyed by the scale only: when the matcher or the error model changes, move the folder aside (as
+``coast_tuning_<commit>``), or the run mixes images of the old code with the new."""
 
 
 def collect(seeds, scale: float) -> list[dict]:
@@ -277,8 +279,8 @@ def lean(seeds) -> dict:
             normal /= np.maximum(np.hypot(*normal), 1e-12)  # (pixel, scan), toward the land
             shift = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan])
             out[name][2].append(float(np.mean(np.sum(shift * normal, axis=0))))
-            found = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.pixel), jnp.asarray(matches.scan)))
-            latitude, longitude = found
+            latitude, longitude = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.pixel),
+                                                                        jnp.asarray(matches.scan)))
             centre_lat, centre_lon = (np.asarray(a) for a in truth.forward(jnp.asarray(matches.predicted_pixel),
                                                                            jnp.asarray(matches.predicted_scan)))
             error = MEAN_RADIUS * np.stack([latitude - centre_lat, (longitude - centre_lon) * np.cos(centre_lat)], 1)

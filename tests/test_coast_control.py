@@ -183,6 +183,14 @@ def _disc(size, centre, radius, island):
     return (inside if island else ~inside).astype(float)
 
 
+def _landward(matches, centre, shift, island):
+    """``(n,)`` pixels: each match's error (position found less the known ``shift``) along the circle's normal
+    toward the land (around ``centre``, column/row; an island's land inside, a lake's outside)."""
+    error = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan], 1) - shift
+    outward = np.stack([matches.predicted_pixel - 1.0 - centre[0], matches.predicted_scan - 1.0 - centre[1]], 1)
+    return np.sum(error * outward, axis=1) / np.hypot(*outward.T) * (-1.0 if island else 1.0)
+
+
 @pytest.mark.parametrize("island", [True, False])
 def test_last_level_finds_a_curved_coast_without_landward_bias(island):
     """An island's and a lake's coast displaced by a known sub-pixel shift: the last level's matches find the shift
@@ -194,9 +202,7 @@ def test_last_level_finds_a_curved_coast_without_landward_bias(island):
     land = _disc(size, centre + shift, radius, island)
     image = 0.3 * land + 0.9 * (1.0 - land) + np.random.default_rng(5).normal(0.0, 0.05, land.shape)
     matches = match_coast(image, prediction, DEFAULT_LEVELS[-1])
-    error = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan], 1) - shift
-    outward = np.stack([matches.predicted_pixel - 1.0 - centre[0], matches.predicted_scan - 1.0 - centre[1]], 1)
-    landward = np.sum(error * outward, axis=1) / np.hypot(*outward.T) * (-1.0 if island else 1.0)  # pixels
+    landward = _landward(matches, centre, shift, island)
     assert abs(float(np.mean(landward))) < 0.05
     assert float(np.sqrt(np.mean(landward**2))) < 0.15
     assert matches.pixel.size >= 20
@@ -207,7 +213,8 @@ def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
     """A coast with a band of fast ice 11 pixels wide, brighter than the land, with pack beyond: fitted over the
     whole window the step profile's peak leans landward (issue 29: one baseline for fast ice and pack); the last
     level fits within COAST_EDGE of the predicted coast, where the sea side is the fast ice alone, and finds the
-    true shift."""
+    true shift. (Flat land here: on the simulated scenes, whose land has relief, the band that moves with the
+    template leans seaward instead, 0.07 pixel — issue 29, coast_matcher_lean.md.)"""
     size, centre, radius = 200, np.array([100.3, 99.6]), 55.0
     shift = np.array([0.3, -0.2])
     prediction = _disc(size, centre, radius, island)
@@ -216,14 +223,9 @@ def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
     image = 0.5 * land + 0.86 * fast + 0.45 * (1.0 - land - fast)
     image = image + np.random.default_rng(6).normal(0.0, 0.05, land.shape)
 
-    def landward(level):
-        matches = match_coast(image, prediction, level)
-        error = np.stack([matches.pixel - matches.predicted_pixel, matches.scan - matches.predicted_scan], 1) - shift
-        outward = np.stack([matches.predicted_pixel - 1.0 - centre[0], matches.predicted_scan - 1.0 - centre[1]], 1)
-        return np.sum(error * outward, axis=1) / np.hypot(*outward.T) * (-1.0 if island else 1.0)
-
-    whole = landward(dataclasses.replace(DEFAULT_LEVELS[-1], edge=None))
-    edge = landward(DEFAULT_LEVELS[-1])
+    whole = _landward(match_coast(image, prediction, dataclasses.replace(DEFAULT_LEVELS[-1], edge=None)), centre,
+                      shift, island)
+    edge = _landward(match_coast(image, prediction, DEFAULT_LEVELS[-1]), centre, shift, island)
     assert float(np.mean(whole)) > 0.2
     assert abs(float(np.mean(edge))) < 0.05
     assert float(np.sqrt(np.mean(edge**2))) < 0.15

@@ -111,10 +111,11 @@ MATCH_SIGMA_SCALE = 0.88
 (``experiments/coast_control_calibration.py``, one simulated 512 x 512 image per seed): pooled σ̂0 0.999
 (0.994-1.005) on the 200 tuning images 61000-61199 with the calibrated :class:`CoastErrors`. Since the last level
 fits within :data:`COAST_EDGE` of the coast (issue 29) the peak's σ overstates the matches' error (pooled σ̂0 0.60
-at 1.5); 0.88 was interpolated between refits of the kept points of a run at 0.85 with the present error model
-(σ̂0 1.027 at 0.85, 0.977 at 0.90) and confirmed by the run above. Before: 1.5 (whole windows at the last level),
-1.7 (the banded profile). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0 does not fall
-as 1/factor."""
+at 1.5 on 12 tuning images); 0.88 was interpolated between refits of the kept points of a run at 0.85 with the
+present error model (σ̂0 1.027 at 0.85, 0.977 at 0.90) and confirmed by the run above (the 12-image run and the
+refits were diagnostics, not kept in the repository; the confirming run is). Before: 1.5 (whole windows at the
+last level), 1.7 (the banded profile). A larger σ lets the w-test keep more moderately wrong matches too, so σ̂0
+does not fall as 1/factor."""
 
 DEFAULT_LEVELS = (MatchLevel(6, 64, 32, 2.0), MatchLevel(3, 48, 24, 1.0),
                   MatchLevel(2, 40, 20, 0.7, COAST_STEP, COAST_EDGE))
@@ -373,8 +374,10 @@ COAST_DATUM_GRADIENT_SIGMA = 0.0
 """σ_g (m per m, dimensionless): σ of each of the four gradients (north and east error along north and east) of
 the error field an image's coastline points share, about their centroid. Maximum likelihood on the tuning seeds
 61000-61079 when the last level fitted whole windows: 0 (0.42e-3 with the banded profile, its landward bias
-narrowing sounds and shrinking islands); not estimated again since (``error_model`` of
-``experiments/coast_control_calibration.py`` leaves it at 0)."""
+narrowing sounds and shrinking islands). With the fit within :data:`COAST_EDGE`, on 61000-61199 (``error_model``
+of ``experiments/coast_control_calibration.py``): 0.15e-3 (0.125-0.15e-3), not adopted: most of it is a stretch
+all images share (the band's seaward lean pulling opposite coasts apart, −13 and +20 m per 100 km), which no random
+field describes (issue 29, open)."""
 
 MATCH_ERROR_KURTOSIS = 3.85
 """κ (effective): σ̂0² of a coastline-controlled fit varies (κ − 1)/r about 1, not 2/r, so its global test uses
