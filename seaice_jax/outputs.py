@@ -8,8 +8,9 @@ The policy, for every command that writes:
 - a lock (``.NAME.lock`` beside the target, an ``flock`` the kernel releases when the process dies) refuses a second
   run into the same target while one is writing, with an error naming the target;
 - SIGINT and SIGTERM while the run holds its target raise :class:`Interrupted` (remembered, so one swallowed by a
-  callback is raised again before the result is moved into place); the target is then left as it was (the old
-  complete result, or nothing) and the temporary folder is removed;
+  callback is raised again before the result is moved into place, and an error a library raised in its place is
+  reported as the interrupt); the target is then left as it was (the old complete result, or nothing) and the
+  temporary folder is removed;
 - temporary folders left by a killed (SIGKILL) run are removed by the next run into the same target;
 - a read-only target (or parent folder) is refused before anything runs, even an empty folder and even for a
   superuser; a target folder given as a symbolic link to a folder is written into the folder it links to (the link
@@ -96,11 +97,25 @@ def interrupts_raise() -> Iterator[None]:
         _pending.clear()
     previous = {s: signal.signal(s, _raise_interrupted) for s in _SIGNALS}
     try:
-        yield
+        with _signal_wins():
+            yield
         check_interrupted()
     finally:
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
+
+
+@contextlib.contextmanager
+def _signal_wins() -> Iterator[None]:
+    """An error raised after a signal arrived is reported as the :class:`Interrupted` it is (chained): a library may
+    turn the signal's exception into another (numpy's ``tofile``, interrupted while writing an ``.npy``, raises
+    ``TypeError: expected str, bytes or os.PathLike object, not BufferedWriter``)."""
+    try:
+        yield
+    except Exception as error:
+        if _pending:
+            raise Interrupted(_pending[-1]) from error
+        raise
 
 
 @contextlib.contextmanager
@@ -293,7 +308,8 @@ def _output(target: str | os.PathLike, folder: bool, overwrite: bool,
             _check_target(target, folder, overwrite, ())
             check_interrupted()  # one swallowed while the run started (e.g. by a garbage-collection callback)
             try:
-                yield OutputFolder(staging, target, folder)
+                with _signal_wins():  # before the cleanup below, which records what it left on an Interrupted
+                    yield OutputFolder(staging, target, folder)
                 check_interrupted()
                 with _signals_held():
                     _move_into_place(staging, target, folder)

@@ -273,6 +273,28 @@ def test_cli_terminated_while_writing(tmp_path, reference, seaice):
     _clean(tmp_path)
 
 
+def test_an_error_a_library_raises_in_place_of_the_signal_is_the_interrupt(tmp_path):
+    """A library may turn the signal's exception into another: numpy's ``tofile``, hit by SIGTERM while ``seaice
+    simulate`` wrote an ``.npy``, raised a TypeError and the run ended as an "unexpected error" (exit 1). The run
+    must stop as interrupted (143, the error chained) with the target untouched."""
+    target = tmp_path / "out"
+
+    def library_write(path):
+        try:
+            path.write_bytes(b"half")
+            signal.raise_signal(signal.SIGTERM)
+        except KeyboardInterrupt:
+            raise TypeError("expected str, bytes or os.PathLike object, not BufferedWriter") from None
+
+    with pytest.raises(Interrupted) as raised, output_folder(target) as folder:
+        library_write(folder.path / "a.npy")
+    assert raised.value.exit_code == 143 and isinstance(raised.value.__cause__, TypeError)
+    assert not target.exists() and not list(tmp_path.iterdir())
+    with pytest.raises(TypeError), output_folder(target):  # without a signal the library's error is what it is
+        raise TypeError("a real one")
+    _clean(tmp_path)
+
+
 def test_interrupted_is_a_keyboard_interrupt():
     assert issubclass(Interrupted, KeyboardInterrupt) and Interrupted(signal.SIGINT).exit_code == 130
 
