@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import cv2
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -213,8 +214,7 @@ def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
     """A coast with a band of fast ice 11 pixels wide, brighter than the land, with pack beyond: fitted over the
     whole window the step profile's peak leans landward (issue 29: one baseline for fast ice and pack); the last
     level fits within COAST_EDGE of the predicted coast, where the sea side is the fast ice alone, and finds the
-    true shift. (Flat land here: on the simulated scenes, whose land has relief, the band that moves with the
-    template leans seaward instead, 0.07 pixel — issue 29, coast_matcher_lean.md.)"""
+    true shift (flat land here; textured land: the next test)."""
     size, centre, radius = 200, np.array([100.3, 99.6]), 55.0
     shift = np.array([0.3, -0.2])
     prediction = _disc(size, centre, radius, island)
@@ -232,22 +232,48 @@ def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
     assert edge.size >= 20
 
 
-def test_weighted_profile_fit_is_the_weighted_regression():
-    """profile_fit's R² at every shift against a weighted least-squares fit of the window on an intercept and the
-    templates (numpy's lstsq on √w-scaled rows): R² = 1 − Σw(y − ŷ)² / Σw(y − ȳ_w)²."""
+@pytest.mark.parametrize("island", [True, False])
+def test_last_level_is_not_pushed_seaward_by_textured_land(island):
+    """Land with relief (textured, σ 0.3 against a contrast of 0.6) beside quiet sea: a band moving with the
+    template preferred shifts that put it over the quiet pixels, the matches 0.16-0.25 pixel seaward here (on the
+    simulated scenes 0.068, issue 29, coast_matcher_lean.md); the band fixed in the image frame fits the same pixels
+    at every shift and has no such preference."""
+    size, centre, radius = 200, np.array([100.3, 99.6]), 60.0
+    shift = np.array([0.3, -0.2])
+    prediction = _disc(size, centre, radius, island)
+    land = _disc(size, centre + shift, radius, island)
+    rng = np.random.default_rng(5)
+    relief = cv2.GaussianBlur(rng.normal(0.0, 1.0, land.shape), (0, 0), 1.5)
+    image = land * (0.3 + 0.3 * relief / relief.std()) + 0.9 * (1.0 - land) + rng.normal(0.0, 0.02, land.shape)
+    landward = _landward(match_coast(image, prediction, DEFAULT_LEVELS[-1]), centre, shift, island)
+    assert abs(float(np.mean(landward))) < 0.08
+    assert float(np.sqrt(np.mean(landward**2))) < 0.25
+    assert landward.size >= 12
+
+
+def test_weighted_profile_fit_is_the_weighted_regression_over_fixed_pixels():
+    """profile_fit's R² at every shift, with a weight fixed in the image frame, against a weighted least-squares
+    fit of those pixels on an intercept and the shifted templates (numpy's lstsq on √w-scaled rows):
+    R² = 1 − Σw(y − ŷ)² / Σw(y − ȳ_w)²; a weight reaching outside the pixels every shift covers is refused."""
     rng = np.random.default_rng(8)
     templates = rng.random((2, 12, 10))
-    weight = rng.random((12, 10))
     region = rng.random((15, 14))
+    weight = np.zeros(region.shape)
+    weight[3:12, 4:10] = rng.random((9, 6))  # the pixels all 4 x 5 shifts cover
     surface = profile_fit(region, templates, weight)
     assert surface.shape == (4, 5)
+    root = np.sqrt(weight.ravel())
+    y = region.ravel()
+    mean = np.sum(weight * region) / weight.sum()
     for i in range(4):
         for j in range(5):
-            y = region[i:i + 12, j:j + 10].ravel()
-            design = np.column_stack([np.ones(y.size), templates.reshape(2, -1).T])
-            root = np.sqrt(weight.ravel())
+            shifted = np.zeros((2, *region.shape))
+            shifted[:, i:i + 12, j:j + 10] = templates
+            design = np.column_stack([np.ones(y.size), shifted.reshape(2, -1).T])
             coefficients = np.linalg.lstsq(design * root[:, None], y * root, rcond=None)[0]
-            mean = np.sum(weight.ravel() * y) / weight.sum()
             expected = 1.0 - np.sum(weight.ravel() * (y - design @ coefficients) ** 2) / np.sum(
                 weight.ravel() * (y - mean) ** 2)
             assert surface[i, j] == pytest.approx(expected, abs=2e-5)
+    weight[2, 5] = 0.1
+    with pytest.raises(ValueError, match="templates' cover"):
+        profile_fit(region, templates, weight)
