@@ -27,7 +27,7 @@ Writes experiments/results/coast_control_calibration.md; each image's summary is
 (``experiments/results/.cache/coast_tuning/<scale>/<seed>.pkl``), so a run resumes.
 Run: ``.venv/bin/python experiments/coast_control_calibration.py [--tune 0 30] [--check 1000 1030] [--scales 1
 1.7]`` (about 10-13 s an image on one core; the package's constants: ``--tune 61000 61200 --check 0 0 --scales
-0.88``; ``--lean 61000 61100``: the last level's bias against the true model's prediction, per matcher variant,
+0.89``; ``--lean 61000 61100``: the last level's bias against the true model's prediction, per matcher variant,
 ``coast_control_calibration.md``'s companion ``coast_matcher_lean.md``). Run two processes on two cores with
 ``OMP_NUM_THREADS=1``: the maximum likelihood takes seconds then, minutes when the linear algebra's threads contend.
 """
