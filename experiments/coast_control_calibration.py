@@ -17,9 +17,11 @@ wrong matches); with one scale nothing is tuned. At each scale the run estimates
 package's
 ``MATCH_ERROR_KURTOSIS`` (:func:`effective_kurtosis`): σ̂0² of a coastline fit varies more than χ²(r)/r, because
 the matches' errors are heavy-tailed and their σ off by a factor shared by an image's points, so the global test
-takes r' = 2r/(κ − 1) degrees of freedom; κ is set where that test rejects α of the tuning fits. It also gives the
-points' correlated-error model by maximum likelihood (:func:`error_model`: the package's ``MATCH_OVERLAP_CORRELATION``
-and ``COAST_DATUM_SIGMA``) and their error shared per imaging geometry (:func:`shared_error`). The package's
+takes r' = 2r/(κ − 1) degrees of freedom; the package takes κ from the moments of the tuning fits (where the test
+rejects exactly α of them rests on their few most extreme fits, which fresh sets did not share). It also gives the
+points' correlated-error model by maximum likelihood (:func:`error_model`: the package's
+``MATCH_OVERLAP_CORRELATION``, ``COAST_DATUM_SIGMA`` and ``COAST_DATUM_GRADIENT_SIGMA``) and their error shared per
+imaging geometry (:func:`shared_error`). The package's
 defaults are then checked on fresh seeds (``--check``; ``experiments/calibration.py``'s coast row checks them on
 its own fresh seeds).
 
