@@ -235,8 +235,8 @@ def test_last_level_is_not_pulled_landward_by_a_band_of_fast_ice(island):
 @pytest.mark.parametrize("island", [True, False])
 def test_last_level_is_not_pushed_seaward_by_textured_land(island):
     """Land with relief (textured, σ 0.3 against a contrast of 0.6) beside quiet sea: a band moving with the
-    template preferred shifts that put it over the quiet pixels, the matches 0.16-0.25 pixel seaward here (on the
-    simulated scenes 0.068, issue 29, coast_matcher_lean.md); the band fixed in the image frame fits the same pixels
+    template preferred shifts that put it over the quiet pixels, the matches 0.16-0.25 pixel seaward here with
+    f6d2c78's matcher (on the simulated scenes 0.068, issue 29); the band fixed in the image frame fits the same pixels
     at every shift and has no such preference."""
     size, centre, radius = 200, np.array([100.3, 99.6]), 60.0
     shift = np.array([0.3, -0.2])

@@ -80,9 +80,10 @@ the predicted coast placed at the expected shift (:attr:`MatchLevel.edge`), the 
 whole window one baseline stands for fast ice and pack, which differ, and the land's relief is in the fit: the
 matches lean 0.039 ± 0.007 pixel landward along the coast's normal, with a per-match RMS of 620 m (simulated
 images, the true model's prediction, ``experiments/coast_control_calibration.py --lean 61000 61060``); within 3
-pixels: 0.018 ± 0.002 pixel landward, RMS 330-380 m, twice the matches kept. A band that moved with the template
-(f6d2c78) leaned 0.068 ± 0.002 pixel seaward: R² over a different set of pixels at each shift preferred shifts that
-put the band over quieter pixels (fast ice rather than textured land), pulling opposite coasts apart (issue 29).
+pixels: 0.018 ± 0.002 pixel landward, RMS 330-380 m, twice the matches found. A band that moved with the template
+(96156a4-f6d2c78) leaned 0.068 ± 0.002 pixel seaward: R² over a different set of pixels at each shift preferred
+shifts that put the band over quieter pixels (fast ice rather than textured land), pulling opposite coasts apart
+(issue 29).
 Wider bands reach the pack beyond a band of fast ice (8 pixels: 0.047 landward; with the moving band 0.15)."""
 
 
@@ -443,8 +444,9 @@ wrong ones. Set where that test rejects 5 % of 680 fits with the calibrated cons
 200 tuning images 61000-61199 and two sets of 240 that had checked the other constants (51480-51719,
 51720-51959): 200 fits alone were too few — the tuning images gave 5.21 (3.80-5.96) by the quantile and 4.59 by
 the moments, the two checking sets 3.87 and 4.18 by the quantile, and at 5.2 and 4.6 they were rejected 1.7 % and
-1.7 % (issue 29). Checked on fresh images 51960-52199. With the band moving with the template κ was 3.85, with
-whole windows 7.9."""
+1.7 % (issue 29; the checking sets' figures from the script's ``effective_kurtosis`` on their cached fits). On the
+fresh images 51960-52199: 4.2 % (2.3-7.5 %, ``experiments/calibration.py``). With the band moving with the template
+κ was 3.85, with whole windows 7.9."""
 
 
 @dataclass(frozen=True)
